@@ -1,0 +1,362 @@
+"""Stiff integrator for the distributed tendon-sheath model.
+
+Method: Alexander's two-stage, second-order, L-stable, stiffly accurate SDIRK
+(gamma = 1 - 1/sqrt(2)) on ``M dy/dt = F(y)`` (``M`` diagonal), with full Newton
+iterations on an analytic Jacobian. The Newton matrix ``M - h*gamma*J`` is a cyclic
+tridiagonal on the ring ``q_in - upper chain - q_out - lower chain`` once the pulley
+velocity states are eliminated, so each linear solve is O(N) (Thomas algorithm on the
+chain with ``q_in`` as the border unknown, one Schur-complement scalar).
+
+Error estimate (adaptive mode): ``e = y_{n+1} - y_hat`` with the embedded first-order
+solution ``y_hat = y_n + h K_1``, i.e. ``e = h gamma (K_2 - K_1)``, filtered through
+``(M - h gamma J)^-1 M`` (Shampine's filter, removes the spurious stiff part), RMS
+norm with weights ``atol_i + rtol |y_i|``.
+
+Fixed mode: one step per interval; an interval is split (halving) only when Newton
+does not converge, and the step grows back afterwards.
+
+Every function returns a status code instead of raising (Numba); ``models.distributed``
+turns codes into exceptions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from models.distributed_rhs import (BP_B_IN, BP_B_LINK, BP_B_M, BP_B_OUT, BP_CC,
+                                    BP_IN_MODE, BP_J_M, BP_J_OUT, BP_K_OUT, BP_K_SEG,
+                                    BP_OUT_MODE, BP_R_IN, BP_R_OUT, OUT_LINK,
+                                    OUT_TESTBED_MASSLESS, disp_scale, eval_system, mass_diag,
+                                    min_tension, segment_tension)
+
+GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
+
+OK = 0
+ERR_SLACK = 1
+ERR_NEWTON = 2
+ERR_NONFINITE = 3
+
+# rows of the work array
+(W_Y0, W_Z1, W_Z2, W_PSI, W_K1, W_F, W_M, W_ATOL, W_DEL, W_R, W_E, W_LO, W_DI, W_UP,
+ W_RHS, W_CP, W_ZZ, W_WW, W_FS, W_KT, W_JLO, W_JDI, W_JUP, W_KP) = range(24)
+N_WORK = 24
+
+# stats slots
+S_STEPS, S_RHS, S_REJECT, S_NEWTON_FAIL, S_H, S_ETA = range(6)
+N_STATS = 6
+# info slots for errors: time, segment index, tension
+I_T, I_SEG, I_TENSION = range(3)
+
+NEWTON_MAXIT = 12
+NEWTON_TOL = 0.05
+H_MIN_S = 1e-12
+
+
+@njit(cache=True)
+def _second_order_in(bp) -> bool:
+    return bp[BP_IN_MODE] != 0.0
+
+
+@njit(cache=True)
+def _second_order_out(bp) -> bool:
+    return int(bp[BP_OUT_MODE]) != OUT_TESTBED_MASSLESS
+
+
+@njit(cache=True)
+def _damp_out(bp) -> float:
+    if int(bp[BP_OUT_MODE]) == OUT_LINK:
+        return bp[BP_B_LINK]
+    return bp[BP_B_OUT]
+
+
+@njit(cache=True)
+def _assemble(n, hg, R, work, bp):
+    """Build the cyclic tridiagonal (lo, di, up, rhs) of ``(M - hg J) D = -R``."""
+    m = 2 * n + 2
+    M = work[W_M]
+    lo = work[W_LO]
+    di = work[W_DI]
+    up = work[W_UP]
+    rhs = work[W_RHS]
+    jl = work[W_JLO]
+    jd = work[W_JDI]
+    ju = work[W_JUP]
+    for j in range(m):
+        lo[j] = -hg * jl[j]
+        di[j] = M[j] - hg * jd[j]
+        up[j] = -hg * ju[j]
+        rhs[j] = -R[j]
+    if _second_order_in(bp):
+        A = (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
+        di[0] = A - hg * jd[0]
+        rhs[0] = -R[m] - A * R[0]
+    if _second_order_out(bp):
+        jo = n + 1
+        A = (bp[BP_J_OUT] + hg * _damp_out(bp)) / hg
+        di[jo] = A - hg * jd[jo]
+        rhs[jo] = -R[m + 1] - A * R[jo]
+
+
+@njit(cache=True)
+def _solve(n, hg, R, work, bp, D):
+    """Solve ``(M - hg J) D = -R`` (cyclic tridiagonal + eliminated velocities)."""
+    m = 2 * n + 2
+    _assemble(n, hg, R, work, bp)
+    lo = work[W_LO]
+    di = work[W_DI]
+    up = work[W_UP]
+    rhs = work[W_RHS]
+    cp = work[W_CP]
+    z = work[W_ZZ]
+    w = work[W_WW]
+    # Thomas on rows 1..m-1 with two right-hand sides: rhs and border column
+    inv = 1.0 / di[1]
+    z[1] = rhs[1] * inv
+    w[1] = lo[1] * inv
+    cp[1] = up[1] * inv
+    for j in range(2, m - 1):
+        inv = 1.0 / (di[j] - lo[j] * cp[j - 1])
+        z[j] = (rhs[j] - lo[j] * z[j - 1]) * inv
+        w[j] = -lo[j] * w[j - 1] * inv
+        cp[j] = up[j] * inv
+    j = m - 1
+    inv = 1.0 / (di[j] - lo[j] * cp[j - 1])
+    z[j] = (rhs[j] - lo[j] * z[j - 1]) * inv
+    w[j] = (up[j] - lo[j] * w[j - 1]) * inv
+    cp[j] = 0.0
+    for j in range(m - 2, 0, -1):
+        z[j] -= cp[j] * z[j + 1]
+        w[j] -= cp[j] * w[j + 1]
+    x0 = (rhs[0] - up[0] * z[1] - lo[0] * z[m - 1]) / (di[0] - up[0] * w[1] - lo[0] * w[m - 1])
+    D[0] = x0
+    for j in range(1, m):
+        D[j] = z[j] - w[j] * x0
+    D[m] = 0.0
+    D[m + 1] = 0.0
+    if _second_order_in(bp):
+        D[m] = (D[0] + R[0]) / hg
+    if _second_order_out(bp):
+        D[m + 1] = (D[n + 1] + R[n + 1]) / hg
+
+
+@njit(cache=True)
+def _wrms(v, y, atolv, rtol, n_eff) -> float:
+    s = 0.0
+    for i in range(v.shape[0]):
+        wi = atolv[i] + rtol * abs(y[i])
+        r = v[i] / wi
+        s += r * r
+    return math.sqrt(s / n_eff)
+
+
+@njit(cache=True)
+def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -> bool:
+    """Solve ``M (Z - psi) - hg F(Z) = 0`` in place. Returns True on convergence."""
+    m = 2 * n + 2
+    M = work[W_M]
+    F = work[W_F]
+    R = work[W_R]
+    D = work[W_DEL]
+    atolv = work[W_ATOL]
+    n_eff = float(m + (1 if _second_order_in(bp) else 0) + (1 if _second_order_out(bp) else 0))
+    # convergence test of Hairer & Wanner (IV.8): stop when eta * |dZ| <= tol with the
+    # contraction estimate eta = theta / (1 - theta), carried over between solves
+    eta = max(stats[S_ETA], 1e-16) ** 0.8
+    prev = 1e300
+    for it in range(NEWTON_MAXIT):
+        eval_system(Z, u, text, n, d0, c_node, b_node, bp, work[W_FS], work[W_KT], F,
+                    work[W_JLO], work[W_JDI], work[W_JUP])
+        stats[S_RHS] += 1.0
+        for i in range(m + 2):
+            R[i] = M[i] * (Z[i] - psi[i]) - hg * F[i]
+        _solve(n, hg, R, work, bp, D)
+        for i in range(m + 2):
+            Z[i] += D[i]
+        nrm = _wrms(D, Z, atolv, rtol, n_eff)
+        if not math.isfinite(nrm):
+            return False
+        if it > 0:
+            theta = nrm / prev
+            if theta >= 0.99:
+                if it >= 3 and nrm > 2.0 * prev:
+                    return False
+                eta = 1e3
+            else:
+                eta = theta / (1.0 - theta)
+        if eta * nrm <= NEWTON_TOL or nrm <= 1e-3 * NEWTON_TOL:
+            stats[S_ETA] = eta
+            return True
+        prev = nrm
+    return False
+
+
+@njit(cache=True)
+def _try_step(n, y, t, h, u_a, u_b, ta, tb, t0, t1, d0, c_node, b_node, bp, work, rtol,
+              adaptive, stats) -> float:
+    """One SDIRK2 step from (t, y) into work[W_Z2]. Returns error norm (inf on Newton failure).
+
+    Inputs are linearly interpolated between (t0, u_a/ta) and (t1, u_b/tb).
+    """
+    m = 2 * n + 2
+    g = GAMMA
+    hg = h * g
+    Y0 = work[W_Y0]
+    Z1 = work[W_Z1]
+    Z2 = work[W_Z2]
+    psi = work[W_PSI]
+    K1 = work[W_K1]
+    Kp = work[W_KP]
+    span = t1 - t0
+    for i in range(m + 2):
+        Y0[i] = y[i]
+    # stage 1
+    s1 = (t + hg - t0) / span if span > 0 else 1.0
+    u1 = u_a + (u_b - u_a) * s1
+    e1 = ta + (tb - ta) * s1
+    for i in range(m + 2):
+        psi[i] = Y0[i]
+        Z1[i] = Y0[i] + hg * Kp[i]
+    if not _newton(n, Z1, psi, hg, u1, e1, d0, c_node, b_node, bp, work, rtol, stats):
+        return math.inf
+    for i in range(m + 2):
+        K1[i] = (Z1[i] - Y0[i]) / hg
+    # stage 2
+    s2 = (t + h - t0) / span if span > 0 else 1.0
+    u2 = u_a + (u_b - u_a) * s2
+    e2 = ta + (tb - ta) * s2
+    for i in range(m + 2):
+        psi[i] = Y0[i] + h * (1.0 - g) * K1[i]
+        Z2[i] = Y0[i] + h * K1[i]
+    if not _newton(n, Z2, psi, hg, u2, e2, d0, c_node, b_node, bp, work, rtol, stats):
+        return math.inf
+    if not adaptive:
+        return 0.0
+    E = work[W_E]
+    D = work[W_DEL]
+    M = work[W_M]
+    for i in range(m + 2):
+        E[i] = (Z2[i] - psi[i]) - (Z1[i] - Y0[i])
+    # filter: D = (M - hg J)^-1 M E  (Jacobian from the last Newton iterate)
+    R = work[W_R]
+    for i in range(m + 2):
+        R[i] = -M[i] * E[i]
+    _solve(n, hg, R, work, bp, D)
+    n_eff = float(m + (1 if _second_order_in(bp) else 0) + (1 if _second_order_out(bp) else 0))
+    return _wrms(D, Z2, work[W_ATOL], rtol, n_eff)
+
+
+@njit(cache=True)
+def segment_forces(y, n, d0, bp, f_seg):
+    """Segment tensions [N] of state ``y`` into ``f_seg`` (m,)."""
+    m = 2 * n + 2
+    for j in range(m):
+        jn = j + 1 if j + 1 < m else 0
+        d = d0[j] + disp_scale(j, n, bp[BP_R_IN], bp[BP_R_OUT]) * y[j] \
+            - disp_scale(jn, n, bp[BP_R_IN], bp[BP_R_OUT]) * y[jn]
+        f, _ = segment_tension(d, bp[BP_K_SEG], bp[BP_CC])
+        f_seg[j] = f
+
+
+@njit(cache=True)
+def advance(y, t0, t1, u_a, u_b, ta, tb, n, d0, c_node, b_node, bp, rtol, atol,
+            adaptive, work, stats, info) -> int:
+    """Advance ``y`` in place from ``t0`` to ``t1``.
+
+    :param u_a, u_b: input torque at t0 and t1 (linear in between; equal for a hold).
+    :param ta, tb: external torque at t0 and t1.
+    :param stats: (N_STATS,) counters; ``stats[S_H]`` carries the proposed step size.
+    :param info: (3,) filled on failure: time [s], segment index, tension [N].
+    :returns: status code (OK, ERR_SLACK, ERR_NEWTON, ERR_NONFINITE).
+    """
+    m = 2 * n + 2
+    mass_diag(n, b_node, bp, work[W_M])
+    atolv = work[W_ATOL]
+    for j in range(m + 2):
+        atolv[j] = atol
+    atolv[m] = atol * 1e3
+    atolv[m + 1] = atol * 1e3
+    span = t1 - t0
+    t = t0
+    h = span if not adaptive else min(stats[S_H], span) if stats[S_H] > 0 else span * 0.1
+    h_prop = h
+    Z2 = work[W_Z2]
+    Kp = work[W_KP]
+    fseg = work[W_FS][:m]
+    while t < t1:
+        remaining = t1 - t
+        if h >= remaining * (1.0 - 1e-9):
+            h = remaining
+        err = _try_step(n, y, t, h, u_a, u_b, ta, tb, t0, t1, d0, c_node, b_node, bp, work,
+                        rtol, adaptive, stats)
+        if not math.isfinite(err):
+            stats[S_NEWTON_FAIL] += 1.0
+            h *= 0.25
+            if h < H_MIN_S:
+                info[I_T] = t
+                return ERR_NEWTON
+            continue
+        if adaptive and err > 1.0:
+            stats[S_REJECT] += 1.0
+            h *= max(0.2, 0.9 / math.sqrt(err))
+            if h < H_MIN_S:
+                info[I_T] = t
+                return ERR_NEWTON
+            continue
+        # accept
+        hg = h * GAMMA
+        for i in range(m + 2):
+            Kp[i] = (Z2[i] - work[W_PSI][i]) / hg
+            y[i] = Z2[i]
+        t = t + h if h < remaining else t1
+        stats[S_STEPS] += 1.0
+        segment_forces(y, n, d0, bp, fseg)
+        jm, fm = min_tension(fseg)
+        if not math.isfinite(fm):
+            info[I_T] = t
+            return ERR_NONFINITE
+        if fm <= 0.0:
+            info[I_T] = t
+            info[I_SEG] = jm
+            info[I_TENSION] = fm
+            return ERR_SLACK
+        if adaptive:
+            fac = 4.0 if err <= 1e-8 else min(4.0, max(0.2, 0.9 / math.sqrt(err)))
+            h_prop = h * fac
+            h = h_prop
+        else:
+            h = min(2.0 * h, span)
+            h_prop = h
+    stats[S_H] = h_prop
+    return OK
+
+
+@njit(cache=True)
+def observe(y, u, n, d0, bp, f_seg, out):
+    """Observations of state ``y`` into ``out``: q_in, dq_in, q_out, dq_out, tau_in, tau_out.
+
+    ``dq`` of first-order pulleys is computed from their balance at input ``u``.
+    """
+    m = 2 * n + 2
+    segment_forces(y, n, d0, bp, f_seg)
+    tau_in = bp[BP_R_IN] * (f_seg[0] - f_seg[m - 1])
+    tau_out = bp[BP_R_OUT] * (f_seg[n] - f_seg[n + 1])
+    out[0] = y[0]
+    if bp[BP_IN_MODE] == 0.0:
+        out[1] = (u - tau_in) / bp[BP_B_IN]
+    else:
+        out[1] = y[m]
+    out[2] = y[n + 1]
+    if int(bp[BP_OUT_MODE]) == OUT_TESTBED_MASSLESS:
+        out[3] = (tau_out - bp[BP_K_OUT] * y[n + 1]) / bp[BP_B_OUT]
+    else:
+        out[3] = y[m + 1]
+    out[4] = tau_in
+    out[5] = tau_out
+
+
+def new_work(n: int) -> np.ndarray:
+    """Allocate the integrator work array for ``n`` internal nodes per cable."""
+    return np.zeros((N_WORK, 2 * n + 4))

@@ -1,0 +1,158 @@
+"""Numerics of the distributed model: friction law, exact Jacobian, integrator agreement
+(fixed 1 ms vs adaptive vs scipy Radau on the same equations)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from models import distributed_integrator as di
+from models import distributed_rhs as rhs
+from models.distributed import (BoundaryParams, DistributedModel, InputMode, OutputMode,
+                                TransmissionParams, _node_coefficients)
+from models.link import LinkParams
+
+
+def _friction_direct(fa: float, fb: float, c: float, p: float) -> float:
+    """Eq (13) evaluated naively in extended precision where it does not overflow."""
+    F = fa - fb
+    N = c * (fa + fb)
+    eps = F / N
+    return N * eps / (1.0 + abs(eps) ** p) ** (1.0 / p)
+
+
+@pytest.mark.parametrize("eps", [0.0, 0.3, 0.9, 0.999, 1.0, 1.02, 1.5, 3.0, 1e3])
+def test_node_law_matches_eq13_and_is_overflow_safe(eps: float) -> None:
+    c, p = 0.01, 100.0
+    fa = 150.0
+    # choose fb such that (fa - fb) / (c (fa + fb)) = eps
+    fb = fa * (1 - c * eps) / (1 + c * eps)
+    g, _, _ = rhs.node_law(fa, fb, c, p)
+    if eps < 5:
+        assert g == pytest.approx((fa - fb) - _friction_direct(fa, fb, c, p), abs=1e-9)
+    else:  # deep sliding: friction = Coulomb limit mu f_N
+        assert g == pytest.approx((fa - fb) - c * (fa + fb), rel=1e-12)
+    g, ga, gb = rhs.node_law(1e9, 1.0, 1e-6, 100.0)      # |eps|^p would overflow
+    assert all(math.isfinite(v) for v in (g, ga, gb))
+    assert rhs.node_law(150.0, 140.0, 0.0, 100.0) == (10.0, 1.0, -1.0)   # theta = 0
+
+
+def test_node_law_derivatives_are_exact() -> None:
+    c, p = 0.01, 100.0
+    for eps in (0.2, 0.5, 0.95, 0.999, 1.001, 1.03, 1.2, 2.0, 3.0, -0.97, -1.05):
+        fa = 150.0
+        fb = fa * (1 - c * eps) / (1 + c * eps)
+        _, ga, gb = rhs.node_law(fa, fb, c, p)
+        h = 1e-6
+        na = (rhs.node_law(fa + h, fb, c, p)[0] - rhs.node_law(fa - h, fb, c, p)[0]) / (2 * h)
+        nb = (rhs.node_law(fa, fb + h, c, p)[0] - rhs.node_law(fa, fb - h, c, p)[0]) / (2 * h)
+        assert ga == pytest.approx(na, abs=1e-6, rel=1e-5)
+        assert gb == pytest.approx(nb, abs=1e-6, rel=1e-5)
+
+
+def _model_arrays(model: DistributedModel):
+    _node_coefficients(model._theta_r, model.mu_scale, model.b_node_Ns_m, model.trans.mu,
+                       model._route, model._c_node, model._b_ring)
+    return model._d0, model._c_node, model._b_ring, model._bp
+
+
+@pytest.mark.parametrize("in_mode, out_mode, j_out", [
+    (InputMode.TORQUE, OutputMode.TESTBED, 0.0), (InputMode.MOTOR, OutputMode.TESTBED, 0.05),
+    (InputMode.MOTOR, OutputMode.LINK, 0.0)])
+def test_rhs_matches_plain_numpy_and_jacobian_matches_differences(in_mode, out_mode, j_out) -> None:
+    n = 4
+    trans = TransmissionParams.uniform(n, 3.0, 150.0)
+    model = DistributedModel(trans, BoundaryParams(input_mode=in_mode, output_mode=out_mode,
+                                                   out_inertia_kg_m2=j_out, link=LinkParams()))
+    model.stiffness_cubic_1_m2 = 3e4
+    d0, c_node, b_ring, bp = _model_arrays(model)
+    m = 2 * n + 2
+    rng = np.random.default_rng(1)
+    y = np.zeros(m + 2)
+    y[:m] = rng.normal(0, 2e-5, m)
+    y[0], y[n + 1] = 0.01, 0.008
+    y[m:] = (0.3, -0.2)
+    M = np.zeros(m + 2)
+    rhs.mass_diag(n, b_ring, bp, M)
+    F = np.zeros(m + 2)
+    fs, kt, jl, jd, ju = (np.zeros(m) for _ in range(5))
+    rhs.eval_system(y, 1.5, 0.3, n, d0, c_node, b_ring, bp, fs, kt, F, jl, jd, ju)
+    ref = rhs.rhs_numpy(y, 1.5, 0.3, n, d0, c_node, b_ring, bp)
+    used = [i for i in range(m + 2) if not (i >= m and M[i] == 1.0 and F[i] == 0.0)]
+    assert np.allclose((F / M)[used], ref[used], rtol=1e-9, atol=1e-9)
+    # ring Jacobian of the force/torque balances against central differences
+    for j in range(m):
+        for off, arr in ((-1, jl), (0, jd), (1, ju)):
+            col = (j + off) % m
+            h = 1e-9 if col not in (0, n + 1) else 1e-7
+            yp, ym = y.copy(), y.copy()
+            yp[col] += h
+            ym[col] -= h
+            Fp, Fm = np.zeros(m + 2), np.zeros(m + 2)
+            rhs.eval_system(yp, 1.5, 0.3, n, d0, c_node, b_ring, bp, fs, kt, Fp, jl.copy(), jd.copy(), ju.copy())
+            rhs.eval_system(ym, 1.5, 0.3, n, d0, c_node, b_ring, bp, fs, kt, Fm, jl.copy(), jd.copy(), ju.copy())
+            row = j
+            if j == 0 and in_mode == InputMode.MOTOR:
+                row = m
+            if j == n + 1 and not (out_mode == OutputMode.TESTBED and j_out == 0.0):
+                row = m + 1
+            num = (Fp[row] - Fm[row]) / (2 * h)
+            assert arr[j] == pytest.approx(num, rel=1e-4, abs=1e-3 * max(1.0, abs(arr[j]))), (j, off)
+
+
+def _scipy_reference(model: DistributedModel, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """tau_out from scipy Radau (tight tolerances) on the plain-numpy equations."""
+    n = model.n
+    d0, c_node, b_ring, bp = _model_arrays(model)
+
+    def f(tt: float, y: np.ndarray) -> np.ndarray:
+        return rhs.rhs_numpy(y, float(np.interp(tt, t, u)), 0.0, n, d0, c_node, b_ring, bp)
+
+    sol = solve_ivp(f, (t[0], t[-1]), np.zeros(2 * n + 4), method="Radau", t_eval=t,
+                    rtol=1e-8, atol=1e-11)
+    assert sol.success
+    out = np.zeros(6)
+    fs = np.zeros(2 * n + 2)
+    tau = np.empty(t.shape[0])
+    for k in range(t.shape[0]):
+        di.observe(np.ascontiguousarray(sol.y[:, k]), u[k], n, d0, bp, fs, out)
+        tau[k] = out[5]
+    return tau
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_fixed_adaptive_and_scipy_radau_agree() -> None:
+    n = 3
+    model = DistributedModel(TransmissionParams.uniform(n, 4.0, 150.0), BoundaryParams())
+    t = np.arange(0.0, 0.6 + 5e-4, 1e-3)
+    u = 8.0 * np.sin(2 * np.pi * 1.5 * t) + 2.0 * np.sin(2 * np.pi * 4.0 * t)
+    fixed = model.simulate(t, u, adaptive=False)
+    model.reset()
+    adaptive = model.simulate(t, u, adaptive=True)
+    model.reset()
+    ref = _scipy_reference(model, t, u)
+    assert np.max(np.abs(adaptive.tau_out_Nm - ref)) < 1e-3
+    assert np.max(np.abs(fixed.tau_out_Nm - ref)) < 0.01
+    assert np.max(np.abs(fixed.tau_out_Nm - adaptive.tau_out_Nm)) < 0.01
+    assert np.ptp(ref) > 5.0       # the run does transmit torque through stick and slip
+
+
+def test_step_equals_simulate_fixed_with_held_input() -> None:
+    trans = TransmissionParams.uniform(8, 3.0, 150.0)
+    a = DistributedModel(trans, BoundaryParams(input_mode=InputMode.MOTOR))
+    b = DistributedModel(trans, BoundaryParams(input_mode=InputMode.MOTOR))
+    t = np.arange(0.0, 0.5 + 5e-4, 1e-3)
+    u = 10.0 * np.sin(2 * np.pi * 2.0 * t)
+    # a held (zero-order) input is a piecewise-linear input with doubled samples
+    for k in range(t.shape[0] - 1):
+        a.step(1e-3, u[k])
+    t2 = np.repeat(t, 2)[1:-1]
+    t2[1::2] -= 1e-9
+    u2 = np.repeat(u[:-1], 2)
+    res = b.simulate(t2, u2, adaptive=False)
+    assert a.t_s == pytest.approx(0.5)
+    assert a.tau_out_Nm == pytest.approx(res.tau_out_Nm[-1], abs=2e-3)
+    assert a.q_in_rad == pytest.approx(res.q_in_rad[-1], abs=1e-5)
