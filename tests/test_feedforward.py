@@ -1,0 +1,126 @@
+"""Friction feedforward (eqs 19, 21, 25) and gravity model inside the control step."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.config import ControllerConfig
+from controller.core import Controller
+from controller.feedforward import friction_curve_Nm, friction_torque_per_N
+
+MU = 0.052
+R = 0.04
+
+
+@pytest.mark.parametrize("theta", [0.3, 3.0, 6.0])
+def test_friction_magnitude_uniform_routing_closed_form(theta):
+    """Uniform routing, equal ends: T0_eq = 2 T0 exp(-mu theta/2), tau_fc = mu theta T0_eq r_out."""
+    cfg = ControllerConfig.from_mapping({"feedforward": {"routing": {"length_m": 1.379, "theta_rad": theta}}})
+    expected = MU * theta * 2.0 * math.exp(-MU * theta / 2.0) * R
+    assert friction_torque_per_N(cfg.feedforward, R) == pytest.approx(expected, rel=1e-9)
+
+
+def test_friction_magnitude_depends_on_total_bending_not_profile_shape():
+    """With equal end pretensions the balanced point splits the bending in halves (eq 24)."""
+    a = ControllerConfig.from_mapping({"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 4.0}}})
+    # same total bending 4 rad concentrated near the input: kappa 0 -> 16 -> 0 over 0.5 m (triangle, area 4)
+    b = ControllerConfig.from_mapping({"feedforward": {"routing": {
+        "curvature_profile": [[0.0, 0.0], [0.2, 16.0], [0.5, 0.0], [1.379, 0.0]]}}})
+    assert b.feedforward.routing().theta_total_rad == pytest.approx(4.0, rel=1e-9)
+    assert friction_torque_per_N(a.feedforward, R) == pytest.approx(friction_torque_per_N(b.feedforward, R), rel=1e-9)
+
+
+def test_stribeck_shape_eq21():
+    cfg = ControllerConfig.from_mapping({"feedforward": {"zeta_s": 1.5, "b_vis_Nms_rad": 0.1}}).feedforward
+    tau_fc = 2.0
+    v = np.array([-3.0, -0.5, 0.0, 0.5, 3.0])
+    f = friction_curve_Nm(v, tau_fc, cfg)
+    assert f[2] == 0.0
+    assert np.allclose(f[::-1], -f)                       # odd
+    # far above the Stribeck velocity: Coulomb level + viscous
+    assert f[-1] == pytest.approx(tau_fc * 1.0 + 0.1 * 3.0, rel=1e-6)
+    # near the Stribeck velocity the sticky factor raises it above Coulomb
+    vs = cfg.eta_s_rad_s
+    fs = friction_curve_Nm(np.array([vs]), tau_fc, cfg)[0]
+    expected = math.tanh(cfg.alpha_s_rad * vs) * (1.0 + 0.5 * math.exp(-1.0)) * tau_fc + 0.1 * vs
+    assert fs == pytest.approx(expected, rel=1e-12)
+
+
+def _ctl(**ff):
+    m = {"gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+         "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0}}, **ff)}
+    return Controller(ControllerConfig.from_mapping(m))
+
+
+def _cycle(ctl, k, T0=150.0, q=0.4, dq=0.5, imu_new=1):
+    rec = ctl.record[0]
+    t = 1.0 + k * 1e-3
+    rec["t_s"] = rec["lc_t_s"] = rec["imu_t_s"] = rec["motor_t_s"] = t
+    rec["T_up_in_N"] = rec["T_up_out_N"] = rec["T_lo_out_N"] = rec["T_lo_in_N"] = T0
+    rec["q_out_rad"], rec["dq_out_rad_s"], rec["imu_new"] = q, dq, imu_new
+    ctl.step()
+    return rec
+
+
+def test_feedforward_reference_placement_and_scaling_with_measured_pretension():
+    ctl = _ctl()
+    rec = _cycle(ctl, 0, T0=150.0)
+    tau_fc_150 = float(rec["tau_fc_Nm"])
+    nominal = friction_torque_per_N(ctl.cfg.feedforward, R) * 150.0
+    assert tau_fc_150 == pytest.approx(nominal, rel=1e-3)    # dq = 0.5 >> eta_s: Coulomb level
+    assert rec["tau_g_Nm"] == pytest.approx(3.78 * math.sin(0.4))
+    assert rec["tau_in_des_Nm"] == pytest.approx(rec["tau_g_Nm"] + tau_fc_150)
+    rec = _cycle(ctl, 1, T0=300.0)
+    assert float(rec["tau_fc_Nm"]) == pytest.approx(2.0 * tau_fc_150, rel=1e-9)
+
+
+def test_feedforward_only_updates_on_new_imu_sample():
+    ctl = _ctl()
+    a = float(_cycle(ctl, 0, dq=0.5)["tau_fc_Nm"])
+    b = float(_cycle(ctl, 1, dq=-0.5, imu_new=0)["tau_fc_Nm"])      # held
+    c = float(_cycle(ctl, 2, dq=-0.5, imu_new=1)["tau_fc_Nm"])      # updated
+    assert b == a and c == pytest.approx(-a)
+
+
+def test_fixed_pretension_ignores_load_cells():
+    ctl = _ctl(pretension="fixed", T0_fixed_N=100.0)
+    rec = _cycle(ctl, 0, T0=250.0)
+    assert float(rec["tau_fc_Nm"]) == pytest.approx(friction_torque_per_N(ctl.cfg.feedforward, R) * 100.0, rel=1e-3)
+
+
+def test_motor_placement_keeps_feedforward_out_of_the_torque_reference():
+    ref = _ctl(placement="reference")
+    mot = _ctl(placement="motor")
+    r1 = _cycle(ref, 0)
+    r2 = _cycle(mot, 0)
+    assert r2["tau_in_des_Nm"] == pytest.approx(r2["tau_g_Nm"])
+    assert r1["tau_in_des_Nm"] == pytest.approx(r1["tau_g_Nm"] + r1["tau_fc_Nm"])
+    # at the first cycle (tau_in = 0, d_hat from the initial tau_in = 0): raw = (1 + kp) tau_des [+ tau_fc]
+    kp = ref.cfg.feedback.kp
+    assert r1["tau_m_raw_Nm"] == pytest.approx((1 + kp) * r1["tau_in_des_Nm"])
+    assert r2["tau_m_raw_Nm"] == pytest.approx((1 + kp) * r2["tau_in_des_Nm"] + r2["tau_fc_Nm"])
+
+
+def test_gain_and_disable():
+    half = _cycle(_ctl(gain=0.5), 0)
+    full = _cycle(_ctl(), 0)
+    off = _cycle(_ctl(enabled=False), 0)
+    assert half["tau_fc_Nm"] == pytest.approx(0.5 * full["tau_fc_Nm"])
+    assert off["tau_fc_Nm"] == 0.0
+
+
+def test_step_uses_the_reduced_model_friction_law():
+    """The step's feedforward equals models.reduced's eq (21) evaluated in plain Python
+    (also guards against a stale Numba cache after models/reduced.py changes)."""
+    from models.reduced import stribeck_friction_Nm
+
+    ctl = _ctl()
+    ff = ctl.cfg.feedforward
+    for k, dq in enumerate((0.003, 0.04, -0.2, 1.5)):
+        rec = _cycle(ctl, k, T0=170.0, dq=dq)
+        expected = stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
+                                                ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+        assert float(rec["tau_fc_Nm"]) == pytest.approx(expected, rel=1e-12, abs=1e-15)
