@@ -98,8 +98,7 @@ class Routing:
         if length_m is not None:
             length = float(length_m)
             if not np.isfinite(length) or length < s[-1] or length <= 0.0:
-                raise ConfigError(f"{key}.length_m" if key != "length_m" else key,
-                                  f"must be > 0 and >= the last sample s = {s[-1]}, got {length_m!r}")
+                raise ConfigError("length_m", f"must be > 0 and >= the last sample s = {s[-1]}, got {length_m!r}")
         else:
             length = float(s[-1])
         if length <= 0.0:
