@@ -51,7 +51,7 @@ N_STATS = 6
 I_T, I_SEG, I_TENSION = range(3)
 
 NEWTON_MAXIT = 12
-NEWTON_TOL = 0.05
+NEWTON_TOL = 1e-4
 H_MIN_S = 1e-12
 
 
@@ -164,7 +164,7 @@ def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -
     n_eff = float(m + (1 if _second_order_in(bp) else 0) + (1 if _second_order_out(bp) else 0))
     # convergence test of Hairer & Wanner (IV.8): stop when eta * |dZ| <= tol with the
     # contraction estimate eta = theta / (1 - theta), carried over between solves
-    eta = max(stats[S_ETA], 1e-16) ** 0.8
+    eta = max(stats[S_ETA], 1e-16) ** 0.8 if stats[S_ETA] > 0.0 else 1.0
     prev = 1e300
     for it in range(NEWTON_MAXIT):
         eval_system(Z, u, text, n, d0, c_node, b_node, bp, work[W_FS], work[W_KT], F,

@@ -68,6 +68,29 @@ _EPS_SLIDE = 2.5
 
 
 @njit(cache=True)
+def _pow_p(a: float, p: float) -> float:
+    """``a ** p`` for 0 <= a <= 1; exact repeated squaring for the default p = 100."""
+    if p == 100.0:
+        a2 = a * a
+        a4 = a2 * a2
+        a8 = a4 * a4
+        a16 = a8 * a8
+        a32 = a16 * a16
+        return a32 * a32 * a32 * a4
+    if a <= 0.0:
+        return 0.0
+    return math.exp(p * math.log(a))
+
+
+@njit(cache=True)
+def _expm1_neg(x: float) -> float:
+    """``expm1(-x)`` for 0 <= x <= ln(2)/p; 5-term series when x < 0.015 (error < 1e-12)."""
+    if x < 0.015:
+        return -x * (1.0 - 0.5 * x * (1.0 - x / 3.0 * (1.0 - 0.25 * x * (1.0 - 0.2 * x))))
+    return math.expm1(-x)
+
+
+@njit(cache=True)
 def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
     """Net force on a node and its partial derivatives.
 
@@ -87,14 +110,9 @@ def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
         # a^p < 0.4^100 ~ 1e-40: g = F (1 - (1+a^p)^(-1/p)) and its slopes vanish
         return 0.0, 0.0, 0.0
     elif a <= 1.0:
-        t = math.exp(p * math.log(a))
-        if t < 1e-8:
-            l1 = t * (1.0 - 0.5 * t)
-            x = l1 / p
-            em = -x * (1.0 - 0.5 * x)          # expm1(-l1 / p)
-        else:
-            l1 = math.log1p(t)
-            em = math.expm1(-l1 / p)
+        t = _pow_p(a, p)
+        l1 = t * (1.0 - 0.5 * t) if t < 1e-8 else math.log1p(t)
+        em = _expm1_neg(l1 / p)
         # s = (1+t)^(-1/p) = 1 + em;  g = F (1 - s);  dpsi/deps = s / (1 + t)
         g = -F * em
         phi_F = (t - em) / (1.0 + t)
@@ -104,14 +122,9 @@ def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
         phi_F = 1.0          # 1 - a^-(p+1) (...) with a^-p < 1e-39
         phi_N = -sgn
     else:
-        tp = math.exp(-p * math.log(a))
-        if tp < 1e-8:
-            l1 = tp * (1.0 - 0.5 * tp)
-            x = l1 / p
-            s = 1.0 - x * (1.0 - 0.5 * x)
-        else:
-            l1 = math.log1p(tp)
-            s = math.exp(-l1 / p)           # (1 + a^-p)^(-1/p)
+        tp = _pow_p(1.0 / a, p)
+        l1 = tp * (1.0 - 0.5 * tp) if tp < 1e-8 else math.log1p(tp)
+        s = 1.0 + _expm1_neg(l1 / p)         # (1 + a^-p)^(-1/p)
         g = F - N * sgn * s
         phi_F = 1.0 - (tp / a) * s / (1.0 + tp)
         phi_N = -sgn * s / (1.0 + tp)
@@ -162,22 +175,33 @@ def eval_system(y, u_Nm, text_Nm, n, d0, c_node, b_node, bp,
     cc = bp[BP_CC]
     p = bp[BP_P]
     for j in range(m):
-        jn = j + 1 if j + 1 < m else 0
-        d = d0[j] + disp_scale(j, n, r_in, r_out) * y[j] - disp_scale(jn, n, r_in, r_out) * y[jn]
-        f, kt = segment_tension(d, k, cc)
-        f_seg[j] = f
-        kt_seg[j] = kt
+        if j == 0:
+            d = d0[0] + r_in * y[0] - y[1]
+        elif j == n:
+            d = d0[j] + y[j] - r_out * y[j + 1]
+        elif j == n + 1:
+            d = d0[j] + r_out * y[j] - y[j + 1]
+        elif j == m - 1:
+            d = d0[j] + y[j] - r_in * y[0]
+        else:
+            d = d0[j] + y[j] - y[j + 1]
+        if cc == 0.0:
+            f_seg[j] = k * d
+            kt_seg[j] = k
+        else:
+            f_seg[j] = k * d * (1.0 + cc * d * d)
+            kt_seg[j] = k * (1.0 + 3.0 * cc * d * d)
     # internal nodes
     for j in range(1, m):
         if j == n + 1:
             continue
-        jp = j - 1
-        jn = j + 1 if j + 1 < m else 0
-        g, ga, gb = node_law(f_seg[jp], f_seg[j], c_node[j], p)
+        g, ga, gb = node_law(f_seg[j - 1], f_seg[j], c_node[j], p)
         F[j] = g
-        j_lo[j] = ga * kt_seg[jp] * disp_scale(jp, n, r_in, r_out)
-        j_di[j] = -ga * kt_seg[jp] + gb * kt_seg[j]
-        j_up[j] = -gb * kt_seg[j] * disp_scale(jn, n, r_in, r_out)
+        s_lo = r_in if j == 1 else (r_out if j == n + 2 else 1.0)
+        s_up = r_out if j == n else (r_in if j == m - 1 else 1.0)
+        j_lo[j] = ga * kt_seg[j - 1] * s_lo
+        j_di[j] = -ga * kt_seg[j - 1] + gb * kt_seg[j]
+        j_up[j] = -gb * kt_seg[j] * s_up
     # input pulley: net torque u - tau_cable_in, tau_cable_in = r_in (f_0 - f_{m-1})
     tau_in = r_in * (f_seg[0] - f_seg[m - 1])
     net_in = u_Nm - tau_in

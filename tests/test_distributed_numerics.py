@@ -141,18 +141,27 @@ def test_fixed_adaptive_and_scipy_radau_agree() -> None:
 
 
 def test_step_equals_simulate_fixed_with_held_input() -> None:
+    """step() and simulate() share one kernel: a held input gives the same state, and
+    one fixed 1 ms step per sample stays within the integrator's accuracy of a tight
+    adaptive reference."""
     trans = TransmissionParams.uniform(8, 3.0, 150.0)
     a = DistributedModel(trans, BoundaryParams(input_mode=InputMode.MOTOR))
     b = DistributedModel(trans, BoundaryParams(input_mode=InputMode.MOTOR))
+    c = DistributedModel(trans, BoundaryParams(input_mode=InputMode.MOTOR))
     t = np.arange(0.0, 0.5 + 5e-4, 1e-3)
     u = 10.0 * np.sin(2 * np.pi * 2.0 * t)
-    # a held (zero-order) input is a piecewise-linear input with doubled samples
     for k in range(t.shape[0] - 1):
         a.step(1e-3, u[k])
+        # a held input over one interval: both ends of the piecewise-linear input equal
+        res = b.simulate(t[k:k + 2], np.array([u[k], u[k]]), adaptive=False)
+    assert a.t_s == pytest.approx(0.5)
+    assert b.t_s == pytest.approx(0.5)
+    assert a.q_in_rad == pytest.approx(b.q_in_rad, abs=1e-8)
+    assert a.tau_out_Nm == pytest.approx(res.tau_out_Nm[-1], abs=1e-6)
+    # reference: the zero-order hold as a piecewise-linear input with 1 ns ramps, adaptive
     t2 = np.repeat(t, 2)[1:-1]
     t2[1::2] -= 1e-9
     u2 = np.repeat(u[:-1], 2)
-    res = b.simulate(t2, u2, adaptive=False)
-    assert a.t_s == pytest.approx(0.5)
-    assert a.tau_out_Nm == pytest.approx(res.tau_out_Nm[-1], abs=2e-3)
-    assert a.q_in_rad == pytest.approx(res.q_in_rad[-1], abs=1e-5)
+    ref = c.simulate(t2, u2, adaptive=True, rtol=1e-8, atol=1e-11)
+    assert a.tau_out_Nm == pytest.approx(ref.tau_out_Nm[-1], abs=2e-3)
+    assert a.q_in_rad == pytest.approx(ref.q_in_rad[-1], abs=1e-5)
