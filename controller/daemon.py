@@ -33,7 +33,7 @@ import numpy as np
 from controller import realtime
 from controller.daemon_config import DaemonConfig
 from controller.daemon_log import STATS_DTYPE, LogSink, fill_stats, newest_log, open_session
-from controller.records import FaultBits, fault_names
+from controller.records import FaultBits, fault_names, loop_command
 from controller.sd_notify import SdNotifier
 from controller.timing import DeadlineSleeper, LoopStats, process_cpu_s, shared_abs_sleep
 from drivers.interfaces import DeviceSet
@@ -249,8 +249,10 @@ class Daemon:
                     note.stopping("ramping torque to zero")
                     log.info("stop requested: ramping torque to zero over %.3f s", L.ramp_down_s)
             r["ext_fault_bits"] = ext
-            # ---- step
+            # ---- step (gated by the phase; the gating is logged so a replay can follow it)
+            r["phase"] = min(int(phase), int(Phase.RAMPING))
             if phase == Phase.ARMING:
+                r["cmd_scale"] = scale = 0.0
                 tau = 0.0
                 if ext == 0 and _fresh(t_s, fresh_s, m_t, imu_t, lc_t):
                     phase = self.phase = Phase.RUNNING
@@ -265,15 +267,16 @@ class Daemon:
                     raise DeviceTimeoutError(f"no fresh data from {', '.join(missing)} within "
                                              f"{L.startup_timeout_s} s after enable")
             else:
-                tau = ctl.step()
+                scale = 1.0
                 if phase == Phase.RAMPING:
                     ramp_left -= 1
-                    tau *= max(ramp_left, 0) / n_ramp
+                    scale = max(ramp_left, 0) / n_ramp
+                r["cmd_scale"] = scale
+                tau = ctl.step()
             fault = int(r["fault_bits"]) | ext
-            if fault or not math.isfinite(tau):
-                if not fault:
-                    fault, reason = int(FaultBits.NONFINITE_OUTPUT), "non-finite torque command"
-                tau = 0.0
+            if not fault and not math.isfinite(tau * scale):
+                fault, reason = int(FaultBits.NONFINITE_OUTPUT), "non-finite torque command"
+            tau = loop_command(tau, scale, fault)
             r["tau_m_cmd_Nm"] = tau
             # ---- write: RPDO then SYNC
             motor.write_torque(tau)

@@ -12,14 +12,17 @@ Who writes what, in cycle order:
    use case, a test signal on the testbed);
 2. the step (:mod:`controller.step`): the controller group, ``tau_m_cmd_Nm`` and
    ``fault_bits``;
-3. the loop, after the step: the timing group.
+3. the loop, after the step: the timing group, and the loop gating (``phase``: whether
+   the step ran at all; ``cmd_scale``: the ramp-down factor it applied to the command).
 
 Replay contract: the step reads only the measurement group, ``t_s`` and its own
-config/state, so feeding logged measurements reproduces ``tau_m_cmd_Nm`` bit for bit.
+config/state, so feeding logged measurements (stepping only where ``phase`` says the
+loop did, and applying :func:`loop_command`) reproduces ``tau_m_cmd_Nm`` bit for bit.
 """
 
 from __future__ import annotations
 
+import math
 from enum import IntFlag
 
 import numpy as np
@@ -84,6 +87,9 @@ RECORD_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("period_s", "f8", "measured period since the previous cycle [s]"),
     ("compute_s", "f8", "time spent from read to write in this cycle [s]"),
     ("late", "u1", "1 if this cycle missed its deadline [-]"),
+    # ---- loop gating (loop, around the step) ------------------------------------
+    ("phase", "u1", "loop phase at the step: 0 arming (no step, command 0), 1 running, 2 ramping down [-]"),
+    ("cmd_scale", "f8", "factor the loop applied to the step's command (1 running, ramp fraction ramping, 0 arming) [-]"),
 )
 
 #: the flat structured dtype of one cycle record
@@ -104,6 +110,26 @@ STEP_OUTPUT_FIELDS: tuple[str, ...] = (
     "tau_in_Nm", "T0_meas_N", "tau_g_Nm", "tau_fc_Nm", "tau_in_des_Nm", "err_Nm", "pd_Nm",
     "d_hat_Nm", "tau_m_raw_Nm", "tau_m_cmd_Nm", "fault_bits",
 )
+
+
+#: the loop gating fields (written around the step; replay inputs as well)
+LOOP_GATING_FIELDS: tuple[str, ...] = ("phase", "cmd_scale")
+
+#: ``phase`` of a cycle in which the loop did not step the controller (arming)
+PHASE_ARMING = 0
+
+
+def loop_command(tau_step_Nm: float, cmd_scale: float, fault_bits: int) -> float:
+    """The command the loop sends, from the step's command: scaled by the loop's gating
+    factor, zero on any fault bit (step or loop) or a non-finite value.
+
+    The daemon and the replay both use this, so a replay reproduces the sent command
+    bit for bit.
+    """
+    tau = tau_step_Nm * cmd_scale
+    if fault_bits or not math.isfinite(tau):
+        return 0.0
+    return tau
 
 
 def new_record() -> np.ndarray:

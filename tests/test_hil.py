@@ -115,6 +115,17 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
     assert np.all(rec["t_s"][100:] - rec["imu_t_s"][100:] < 0.025)
     assert log.stats is not None and len(log.stats) >= 1
     assert log.config["loop"]["period_s"] == 0.001
+    # the daemon's log replays bit for bit: arming cycles (no step), the ramp-down factor
+    # and every controller step follow from the logged inputs and gating alone
+    assert rec["phase"][0] == 0 and rec["phase"][-1] == 2
+    assert np.all(rec["tau_m_cmd_Nm"][rec["phase"] == 0] == 0.0)
+    assert rec["cmd_scale"][-1] == 0.0 and np.all(rec["cmd_scale"][rec["phase"] == 1] == 1.0)
+    rep = subprocess.run([sys.executable, "-m", "tools.cli", "replay", out["log_path"], "--json"],
+                         cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert rep.returncode == 0, rep.stderr[-3000:]
+    replay = json.loads(rep.stdout)
+    assert replay["max_abs_dtau_m_Nm"] == 0.0 and replay["cycles_different"] == 0
+    assert replay["cycles"] == out["cycles"]
 
 
 def test_sigterm_ramps_to_zero_and_closes_the_log(hil_config: Path) -> None:

@@ -55,6 +55,7 @@ def simulate_run(n: int, cfg: dict = CONFIG, seed: int = 3) -> np.ndarray:
         rec["motor_t_s"] = t - 1e-4
         ctl.step()
         rec["period_s"], rec["compute_s"], rec["late"] = 1e-3, 2e-5, 0
+        rec["phase"], rec["cmd_scale"] = 1, 1.0          # running: stepped, unscaled
         out[k] = rec
     return out
 

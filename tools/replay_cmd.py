@@ -109,6 +109,8 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
         result are copied from the log (timing).
     :raises DataFormatError: if the log lacks an input field or the command field.
     """
+    from controller.records import LOOP_GATING_FIELDS, PHASE_ARMING
+
     dtype = ctl.record.dtype
     n = len(records)
     for name in (*input_fields, command_field):
@@ -117,25 +119,35 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
     out = np.zeros(n, dtype)
     for name in input_fields:
         out[name] = records[name]
+    # the loop's gating: cycles it did not step (arming) and the factor it applied
+    gated = all(f in (records.dtype.names or ()) for f in LOOP_GATING_FIELDS)
+    if gated:
+        stepped = records["phase"] != PHASE_ARMING
+        scale = records["cmd_scale"].astype(np.float64)
+    else:                                   # a log of a loop without gating: every cycle stepped
+        stepped = np.ones(n, bool)
+        scale = np.ones(n)
+    todo = np.flatnonzero(stepped)
     step = ctl.step
     own_record = ctl.record
     t0 = time.perf_counter()
     try:
         # fast path: point the controller's record at row i of the result, so the step
         # reads the logged inputs there and writes its outputs in place
-        i = 0
-        if n:
-            ctl.record = out[0:1]
-            out[command_field][0] = _SENTINEL           # must be overwritten by the step
+        if todo.size:
+            i = int(todo[0])
+            ctl.record = out[i:i + 1]
+            out[command_field][i] = _SENTINEL           # must be overwritten by the step
             tau = np.float64(step())
-            if out[command_field][:1].view(np.uint64)[0] != tau.view(np.uint64):
+            if out[command_field][i:i + 1].view(np.uint64)[0] != tau.view(np.uint64):
                 raise _NoInPlace
             if progress is not None:
                 progress(0, n)
-            for i in range(1, n):
+            for k in range(1, todo.size):
+                i = int(todo[k])
                 ctl.record = out[i:i + 1]
                 step()
-                if progress is not None and not i & 0xFFFF:
+                if progress is not None and not k & 0xFFFF:
                     progress(i, n)
     except _NoInPlace:
         # the controller does not step on whatever ``record`` refers to: copy in and out
@@ -145,11 +157,12 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
         rec_u8 = own_record.view(np.uint8)
         in_u8 = inp.view(np.uint8).reshape(n, dtype.itemsize)
         out_u8 = out.view(np.uint8).reshape(n, dtype.itemsize)
-        for i in range(n):
+        for k in range(todo.size):
+            i = int(todo[k])
             rec_u8[:] = in_u8[i]
             step()
             out_u8[i] = rec_u8
-            if progress is not None and not i & 0xFFFF:
+            if progress is not None and not k & 0xFFFF:
                 progress(i, n)
     finally:
         ctl.record = own_record
@@ -159,6 +172,14 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
     for name in dtype.names:
         if name not in output_fields and name not in input_fields and name in (records.dtype.names or ()):
             out[name] = records[name]
+    # the loop's command from the step's: gating factor, zero on any fault (as the daemon)
+    cmd = out[command_field]
+    faults = out["fault_bits"].astype(np.int64) if "fault_bits" in dtype.names else np.zeros(n, np.int64)
+    if "ext_fault_bits" in dtype.names:
+        faults |= out["ext_fault_bits"].astype(np.int64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        cmd *= scale                        # vectorised controller.records.loop_command
+    cmd[(faults != 0) | ~np.isfinite(cmd) | ~stepped] = 0.0
     a = records[command_field].astype(np.float64)
     b = out[command_field]
     differ = a.view(np.uint64) != b.view(np.uint64)
