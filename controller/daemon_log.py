@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
+from controller.records import LOG_FLOAT32_FIELDS
 from controller.timing import WindowReport
 
 #: one timing-statistics record per window (``/capstan/stats``), µs unless noted
@@ -86,15 +87,22 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
                  fault_history_cycles: int, prefix: str = "capstan") -> Any:
     """Create the rings and start the writer process.
 
+    The fields of :data:`controller.records.LOG_FLOAT32_FIELDS` that the record has are
+    stored as float32 (recomputed by a replay, or integer-nanosecond timing).
+
     :param config: the daemon config mapping, stored as YAML in every log file.
     :returns: a started :class:`controller.log_writer.LogSession`.
     :raises OSError: if the rings or the log directory cannot be created.
+    :raises LogWriterError: if the writer process does not start.
     """
     from controller.log_writer import LogSession
     out_dir.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(config, sort_keys=False) if not isinstance(config, str) else config
+    names = record_dtype.names or ()
+    f32 = tuple(f for f in LOG_FLOAT32_FIELDS if f in names and record_dtype[f] == np.float64)
     session = LogSession(record_dtype, out_dir, config_yaml=text, stats_dtype=STATS_DTYPE,
-                         capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles)
+                         capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
+                         float32_fields=f32)
     session.start()
     return session
 

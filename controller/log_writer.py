@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from controller.log_ring import LogRing
-from controller.mcap_log import EventKind, McapLog
+from controller.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog
 from controller.mcap_schema import build_layout
 from models.errors import CapstanError
 
@@ -42,6 +42,12 @@ _log = logging.getLogger(__name__)
 class LogWriterError(CapstanError):
     """The log writer process could not be started or did not become ready."""
 
+
+#: zstd level of the live log: the knee of file size against writer CPU for cycle
+#: records (``tools/bench_logging.py --levels`` prints the curve: levels 3..12 within 1 %
+#: of each other, 15 about 12 % smaller at 30-40 us CPU per record, i.e. 3-4 % of one CPU
+#: at 1 kHz, 19 no smaller at twice the CPU)
+LIVE_ZSTD_LEVEL = 15
 
 #: fixed-size event record passed from the daemon to the writer
 EVENT_DTYPE = np.dtype([("t_s", "<f8"), ("kind", "<u4"), ("n_cycles", "<u4"), ("code", "<u8"),
@@ -98,13 +104,15 @@ def _alive(pid: int) -> bool:
 
 def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = None,
                stats: LogRing | None = None, prefix: str = "capstan", rotate_size_bytes: int = 0,
-               rotate_time_s: float = 0.0, flush_interval_s: float = 0.5, compression: str = "zstd",
-               fault_history_n: int = 1000, poll_s: float = 0.005, parent_pid: int = 0,
-               stop_flag: list[bool] | None = None, float32_fields: tuple[str, ...] = ()) -> McapLog:
+               rotate_time_s: float = 0.0, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
+               compression: str = "zstd", fault_history_n: int = 1000, poll_s: float = 0.005,
+               parent_pid: int = 0, stop_flag: list[bool] | None = None,
+               float32_fields: tuple[str, ...] = (), zstd_level: int = LIVE_ZSTD_LEVEL) -> McapLog:
     """Drain the rings into MCAP until the producer closes, dies, or ``stop_flag[0]``.
 
     :returns: the closed :class:`McapLog` (``files``, ``records_written``).
     :raises LogFormatError: if the record dtype cannot be logged.
+    :raises ValueError: on an unknown compression or a zstd level out of 1..22.
     """
     stop_flag = stop_flag if stop_flag is not None else [False]
     config_yaml = str(cycle.meta.get("config_yaml", ""))
@@ -112,7 +120,7 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                    stats_dtype=stats.dtype if stats is not None else None,
                    rotate_size_bytes=rotate_size_bytes, rotate_time_s=rotate_time_s,
                    flush_interval_s=flush_interval_s, compression=compression,
-                   float32_fields=float32_fields)
+                   float32_fields=float32_fields, zstd_level=zstd_level)
     hist = _History(cycle.dtype, fault_history_n)
     cycle.set_consumer_ready()
     producer = parent_pid or cycle.producer_pid
@@ -199,15 +207,20 @@ class LogSession:
     :param rotate_size_bytes / rotate_time_s: rotation policy (0 = never).
     :param float32_fields: float64 fields stored rounded to float32 (see
         :func:`controller.mcap_schema.build_layout`); never replay inputs or the command.
+    :param zstd_level: zstd level of the chunks (1..22).
     :raises LogFormatError: if the dtype cannot be logged or a float32 field is invalid.
+    :raises ValueError: on a zstd level out of 1..22.
     """
 
     def __init__(self, record_dtype: np.dtype, out_dir: str | Path, config_yaml: str = "",
                  stats_dtype: np.dtype | None = None, capacity: int = 8192, prefix: str = "capstan",
-                 fault_history_n: int = 1000, flush_interval_s: float = 0.5,
+                 fault_history_n: int = 1000, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
                  rotate_size_bytes: int = 0, rotate_time_s: float = 0.0,
-                 compression: str = "zstd", float32_fields: tuple[str, ...] = ()) -> None:
+                 compression: str = "zstd", float32_fields: tuple[str, ...] = (),
+                 zstd_level: int = LIVE_ZSTD_LEVEL) -> None:
         build_layout(record_dtype, "capstan.Cycle", tuple(float32_fields))   # fail here, not in the writer
+        if not 1 <= int(zstd_level) <= 22:
+            raise ValueError(f"zstd level must be 1..22, got {zstd_level}")
         self.out_dir = Path(out_dir)
         self.fault_history_n = fault_history_n
         self.cycle = LogRing.create(record_dtype, capacity, meta={"config_yaml": config_yaml})
@@ -218,7 +231,7 @@ class LogSession:
                       "--rotate-size-bytes", str(int(rotate_size_bytes)),
                       "--rotate-time-s", str(rotate_time_s), "--compression", compression,
                       "--fault-history", str(fault_history_n),
-                      "--float32-fields", ",".join(float32_fields)]
+                      "--float32-fields", ",".join(float32_fields), "--zstd-level", str(int(zstd_level))]
         self.proc: subprocess.Popen | None = None
 
     def start(self, ready_timeout_s: float = 10.0) -> None:
@@ -303,11 +316,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--prefix", default="capstan")
     p.add_argument("--rotate-size-bytes", type=int, default=0)
     p.add_argument("--rotate-time-s", type=float, default=0.0)
-    p.add_argument("--flush-interval-s", type=float, default=0.5)
+    p.add_argument("--flush-interval-s", type=float, default=DEFAULT_FLUSH_INTERVAL_S)
     p.add_argument("--compression", default="zstd", choices=("zstd", "lz4", "none"))
     p.add_argument("--fault-history", type=int, default=1000)
     p.add_argument("--parent-pid", type=int, default=0)
     p.add_argument("--float32-fields", default="", help="comma-separated fields stored as float32")
+    p.add_argument("--zstd-level", type=int, default=LIVE_ZSTD_LEVEL, help="zstd level of the chunks")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s log_writer: %(message)s")
@@ -324,7 +338,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     run_writer(cycle, args.out_dir, events, stats, args.prefix, args.rotate_size_bytes,
                args.rotate_time_s, args.flush_interval_s, args.compression, args.fault_history,
                parent_pid=args.parent_pid, stop_flag=stop,
-               float32_fields=tuple(f for f in args.float32_fields.split(",") if f))
+               float32_fields=tuple(f for f in args.float32_fields.split(",") if f),
+               zstd_level=args.zstd_level)
     orphaned = not _alive(args.parent_pid or cycle.producer_pid)
     for ring in (cycle, events, stats):
         if ring is not None:

@@ -17,8 +17,8 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
 from controller.log_reader import read_log, read_logs
-from controller.log_writer import LogSession
-from controller.mcap_log import EventKind, McapLog
+from controller.log_writer import LIVE_ZSTD_LEVEL, LogSession
+from controller.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog
 from controller.mcap_schema import LogFormatError, build_layout
 
 DT = np.dtype([("t_s", "<f8"), ("tau_in_Nm", "<f8"), ("q_out_rad", "<f8"), ("x32", "<f4"),
@@ -151,6 +151,42 @@ def test_rotation_by_size_and_time(tmp_path: Path) -> None:
     assert read_log(tlog.files[1]).meta["file_index"] == "1"
 
 
+def test_open_chunk_reaches_the_file_within_the_flush_interval(tmp_path: Path) -> None:
+    """What a kill of the writer can lose: the open chunk (at most the flush interval of
+    records) plus the time to compress it; the default keeps that under 1 s."""
+    r = make_records(400 + int(1000 * DEFAULT_FLUSH_INTERVAL_S))
+    log = McapLog(tmp_path, "p", DT, zstd_level=LIVE_ZSTD_LEVEL)
+    t0 = time.monotonic()
+    assert log.flush_interval_s == DEFAULT_FLUSH_INTERVAL_S
+    log.write_records(r[:400])
+    log.tick(t0 + 0.5 * DEFAULT_FLUSH_INTERVAL_S)
+    assert len(read_log(log.current_file).records) == 0              # chunk still open
+    log.tick(t0 + DEFAULT_FLUSH_INTERVAL_S + 0.01)
+    assert same_bits(read_log(log.current_file).records, r[:400])   # closed and on disk
+    log.write_records(r[400:])
+    c0 = time.perf_counter()
+    log.flush()                          # one interval's worth of 1 kHz records
+    compress_s = time.perf_counter() - c0
+    log.close()
+    assert DEFAULT_FLUSH_INTERVAL_S + 0.005 + compress_s < 1.0, compress_s
+
+
+def test_file_cut_inside_a_message_index_keeps_complete_chunks(tmp_path: Path) -> None:
+    r = make_records(3000)
+    log = McapLog(tmp_path, "c", DT, flush_interval_s=0)
+    for i in range(0, 3000, 1000):
+        log.write_records(r[i:i + 1000])
+        log.flush()                                     # three chunks, each with its index
+    log.close()
+    data = log.current_file.read_bytes()
+    with open(log.current_file, "rb") as fh:
+        last = make_reader(fh).get_summary().chunk_indexes[-1]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:last.chunk_start_offset + last.chunk_length + 40])   # inside its index
+    got = read_log(cut)
+    assert got.truncated and same_bits(got.records, r)
+
+
 def test_float32_storage_option(tmp_path: Path) -> None:
     r = make_records(1000)
     log = McapLog(tmp_path, "f", DT, float32_fields=("tau_in_Nm",))
@@ -259,7 +295,7 @@ def test_daemon_sigkill_writer_closes_file(tmp_path: Path) -> None:
         import os, signal, sys, time
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_log_writer import DT, make_records, _pace
-        from controller.log_writer import LogSession
+        from controller.log_writer import LIVE_ZSTD_LEVEL, LogSession
         s = LogSession(DT, {str(tmp_path)!r})
         s.start()
         print(s.proc.pid, flush=True)

@@ -9,12 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from mcap.reader import make_reader
 
 from controller.config import ControllerConfig
 from controller.core import Controller
+from controller.daemon_log import newest_log, open_session
 from controller.log_reader import read_log
 from controller.mcap_log import McapLog
-from controller.records import MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
+from controller.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
 from tools.cli import main
 from tools.replay_cmd import merge_config, replay_records
 
@@ -90,6 +92,54 @@ def test_replay_of_log_with_float32_intermediates_is_exact(tmp_path: Path, run_l
     path = write_log(tmp_path / "f32.mcap", recs, float32_fields=f32)
     assert main(["replay", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["max_abs_dtau_m_Nm"] == 0.0
+
+
+def test_daemon_log_layout_has_every_field_and_replays_bit_exactly(tmp_path: Path, run_log, capsys) -> None:
+    """The daemon's own log session (writer process, float32 copies of what the replay
+    recomputes): every record field is in the protobuf schema with its storage type, the
+    inputs and the command come back bit for bit, and the replay matches exactly."""
+    descriptor_pb2 = pytest.importorskip("google.protobuf.descriptor_pb2")
+    _, recs = run_log
+    session = open_session(tmp_path, RECORD_DTYPE, CONFIG, ring_records=8192, fault_history_cycles=100)
+    for i in range(len(recs)):
+        assert session.push(recs[i:i + 1])
+    assert session.close(timeout_s=30) == 0
+    path = newest_log(tmp_path)
+    assert path is not None
+    data = read_log(path)
+    assert data.records.dtype == RECORD_DTYPE and len(data.records) == len(recs)
+    for f in RECORD_DTYPE.names:
+        if f in LOG_FLOAT32_FIELDS:
+            np.testing.assert_array_equal(data.records[f], recs[f].astype(np.float32).astype(np.float64))
+        else:
+            assert data.records[f].tobytes() == recs[f].tobytes(), f
+    assert set(LOG_FLOAT32_FIELDS) <= set(STEP_OUTPUT_FIELDS) | {"period_s", "compute_s"}
+    assert "tau_m_cmd_Nm" not in LOG_FLOAT32_FIELDS and not set(LOG_FLOAT32_FIELDS) & set(MEASUREMENT_FIELDS)
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        schema = reader.get_summary().schemas[1]
+        k = 1234
+        _, _, msg_k = next(m for i, m in enumerate(reader.iter_messages(topics=["/capstan/cycle"])) if i == k)
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    msg = fds.file[0].message_type[0]
+    assert [fd.name for fd in msg.field] == list(RECORD_DTYPE.names)
+    double, float_, fixed64, fixed32 = 1, 2, 6, 7
+    want = {f: float_ if f in LOG_FLOAT32_FIELDS else
+            {"f": double, "u": fixed32}[RECORD_DTYPE[f].kind] if RECORD_DTYPE[f].itemsize <= 8 else None
+            for f in RECORD_DTYPE.names}
+    want["cycle"] = fixed64
+    assert {fd.name: fd.type for fd in msg.field} == want
+    # a standard protobuf decoder (as Foxglove's) reads a logged message from that schema
+    from google.protobuf import descriptor_pool, message_factory
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(fds.file[0])
+    decoded = message_factory.GetMessageClass(pool.FindMessageTypeByName("capstan.Cycle")).FromString(msg_k.data)
+    for f in RECORD_DTYPE.names:
+        assert getattr(decoded, f) == data.records[f][k], f
+    assert decoded.cycle == k and decoded.d_hat_Nm != 0.0
+    assert main(["replay", str(path), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["max_abs_dtau_m_Nm"] == 0.0 and rep["cycles_different"] == 0 and rep["cycles"] == len(recs)
 
 
 def test_replay_recomputes_every_step_output(run_log) -> None:
