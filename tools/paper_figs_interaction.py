@@ -88,6 +88,11 @@ def fig13(settings: Settings, out_dir: Path) -> dict[str, Any]:
                 continue
             paper = PAPER_FIG13.get((cname, key))
             note = "safety stage latched (run stopped)" if faulted[cname][key] else ""
+            if paper is not None and not note:
+                base = means[cname]["pid_gravity_only"]
+                note = (f"reduction from uncompensated {base / means[cname][key]:.1f}x here vs "
+                        f"{PAPER_FIG13[('any', 'pid_gravity_only')] / paper:.1f}x in the paper; our arm model, "
+                        "motion and plant differ from the paper's human and rig")
             if key.endswith("@motor"):
                 note = note or "eq (28) as printed: feedforward added to tau_m, where the observer/PD fight it"
             elif key == "ldo":

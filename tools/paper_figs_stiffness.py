@@ -56,21 +56,25 @@ def effective_stiffness_Nm_rad(run: Run, frac: float = 0.6) -> float:
     return float(np.linalg.lstsq(A, run.tau_in_Nm[sel], rcond=None)[0][0])
 
 
-def hysteresis_height_Nm(run: Run, skip_s: float) -> float:
+def hysteresis_height_Nm(run: Run, skip_s: float, smooth_s: float = 0.02) -> float:
     """Mean tau_out at falling minus at rising zero crossings of tau_in after ``skip_s`` [Nm].
 
-    Uses the noise-free commanded shape's crossings of the measured tau_in smoothed over 21 samples.
+    Both torques are smoothed over ``smooth_s`` [s] (a fixed time, so the estimate does not
+    depend on the sample rate; the loop turns sharply at the reversals and a longer window
+    cuts into it) and tau_out is interpolated linearly at each crossing.
     """
-    k = np.ones(21) / 21.0
+    dt = float(np.median(np.diff(run.t_s)))
+    w = max(1, int(round(smooth_s / dt))) | 1
+    k = np.ones(w) / w
     u = np.convolve(run.tau_in_Nm, k, mode="same")
     y = np.convolve(run.tau_out_Nm, k, mode="same")
     i0 = int(np.searchsorted(run.t_s, skip_s))
+    h = w // 2
     up, down = [], []
-    for i in range(max(i0, 11), len(u) - 11):
-        if u[i - 1] < 0.0 <= u[i]:
-            up.append(y[i])
-        elif u[i - 1] > 0.0 >= u[i]:
-            down.append(y[i])
+    for i in range(max(i0, h + 1), len(u) - h):
+        if (u[i - 1] < 0.0 <= u[i]) or (u[i - 1] > 0.0 >= u[i]):
+            f = u[i - 1] / (u[i - 1] - u[i])
+            (up if u[i] > u[i - 1] else down).append(y[i - 1] + f * (y[i] - y[i - 1]))
     if not up or not down:
         return math.nan
     return float(np.mean(down) - np.mean(up))
