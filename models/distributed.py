@@ -29,7 +29,8 @@ tension reaching zero (slack) leaves the model's range: :class:`OperatingRangeEr
 After any error the state is undefined until :meth:`DistributedModel.reset`.
 
 Numerics: :mod:`models.distributed_rhs` (right-hand side, Jacobian) and
-:mod:`models.distributed_integrator` (L-stable SDIRK2, O(N) Newton solves).
+:mod:`models.distributed_integrator` (L-stable SDIRK2, O(N) Newton solves),
+:mod:`models.distributed_dense` (offline error-controlled runs across sample times).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
+from models import distributed_dense as dense
 from models import distributed_integrator as di
 from models import distributed_rhs as rhs
 from models.errors import ConfigError, IntegrationError, OperatingRangeError
@@ -92,7 +94,12 @@ class TransmissionParams:
     :ivar tension_lower_N: (N+1,) initial segment tensions, routing order input -> output.
     :ivar stiffness_Nm_rad: K_c, static torsional stiffness with mu = 0 [Nm/rad].
     :ivar mu: friction coefficient [-]. :ivar p: smoothness exponent of eq (13).
-    :ivar r_in_m, r_out_m: pulley radii [m]. :ivar b_node_Ns_m: node damping [N s/m].
+    :ivar r_in_m, r_out_m: pulley radii [m]. :ivar b_node_Ns_m: damping of each internal
+        node [N s/m], the paper's b_l = 1e-3 N s/mm (Table 3), per node, not per cable. It
+        is not negligible: with the smooth law (13) a node creeps at ``g / b`` below the
+        Coulomb limit, and a sliding cable drags ``N b v``. On the testbed multisine
+        (theta = 3 rad, T0 = 150 N) tau_out moves by 0.04-0.08 Nm RMSE for b = 0.1 and by
+        0.14-0.6 Nm for b = 10 (N = 10-50); an implementation must use the same value.
     :raises ConfigError: on wrong shapes or non-positive / non-finite values.
     """
 
@@ -231,22 +238,33 @@ class SimResult:
 
 
 @njit(cache=True)
-def _node_coefficients(theta_r, mu_scale_r, b_node_r, mu, route, c_node, b_ring):
-    """Per-ring-entry friction factor ``mu*scale*theta/2`` and damping from routing arrays."""
+def _node_coefficients(theta_r, mu_scale_r, b_node_r, mu, route, c_node, b_ring) -> int:
+    """Per-ring-entry friction factor ``mu*scale*theta/2`` and damping from routing arrays.
+
+    :returns: ``di.OK``, or ``di.ERR_PARAM`` if a damping is not > 0 or a friction
+        multiplier not >= 0 (NaN included) or an array has the wrong length.
+    """
+    if mu_scale_r.shape[0] != theta_r.shape[0] or b_node_r.shape[0] != theta_r.shape[0]:
+        return di.ERR_PARAM
     for j in range(route.shape[0]):
         r = route[j]
         if r < 0:
             c_node[j] = 0.0
             b_ring[j] = 1.0
         else:
+            if not (b_node_r[r] > 0.0 and mu_scale_r[r] >= 0.0):
+                return di.ERR_PARAM
             c_node[j] = 0.5 * mu * mu_scale_r[r] * theta_r[r]
             b_ring[j] = b_node_r[r]
+    return di.OK
 
 
 @njit(cache=True)
 def _step_kernel(y, t0, t1, u, text, n, d0, theta_r, mu_scale_r, b_node_r, mu, route, c_node,
                  b_ring, bp, rtol, atol, adaptive, work, stats, info, obs, f_seg) -> int:
-    _node_coefficients(theta_r, mu_scale_r, b_node_r, mu, route, c_node, b_ring)
+    st = _node_coefficients(theta_r, mu_scale_r, b_node_r, mu, route, c_node, b_ring)
+    if st != di.OK:
+        return st
     st = di.advance(y, t0, t1, u, u, text, text, n, d0, c_node, b_ring, bp, rtol, atol,
                     adaptive, work, stats, info)
     if st == di.OK:
@@ -290,6 +308,7 @@ class DistributedModel:
         self._f0 = np.concatenate((trans.tension_upper_N, trans.tension_lower_N[::-1]))
         self.mu_scale = np.ones(2 * n)
         self.b_node_Ns_m = np.full(2 * n, trans.b_node_Ns_m)
+        self._checked_arrays: tuple[object, object] = (None, None)
         self._c_node = np.zeros(m)
         self._b_ring = np.ones(m)
         self._cubic = 0.0
@@ -339,6 +358,9 @@ class DistributedModel:
         self._u = 0.0
         self._stats[:] = 0.0
         self._work[di.W_KP, :] = 0.0
+        self._work[di.W_P1, :] = 0.0
+        self._work[di.W_P2, :] = 0.0
+        self._work[di.W_HP, :] = 0.0
         di.observe(self._y, 0.0, self.n, self._d0, self._bp, self._fseg, self._obs)
 
     def _elongation_for(self, f_N: np.ndarray) -> np.ndarray:
@@ -393,13 +415,26 @@ class DistributedModel:
         di.observe(self._y, self._u, self.n, self._d0, self._bp, self._fseg, self._obs)
 
     # ------------------------------------------------------------ stepping
+    def _check_node_arrays(self) -> None:
+        """Shape/dtype check of ``mu_scale`` and ``b_node_Ns_m``, redone only when one of
+        them was replaced (their values are checked on every step by the kernel)."""
+        ms, bn = self.mu_scale, self.b_node_Ns_m
+        if ms is self._checked_arrays[0] and bn is self._checked_arrays[1]:
+            return
+        for name, arr in (("mu_scale", ms), ("b_node_Ns_m", bn)):
+            if not isinstance(arr, np.ndarray) or arr.shape != (2 * self.n,) or arr.dtype != np.float64:
+                raise ConfigError(name, f"must be a float64 array of shape ({2 * self.n},)")
+        self._checked_arrays = (ms, bn)
+
     def _check_node_params(self) -> None:
-        if self.mu_scale.shape != (2 * self.n,) or self.b_node_Ns_m.shape != (2 * self.n,):
-            raise ConfigError("mu_scale/b_node_Ns_m", f"must have shape ({2 * self.n},)")
-        if np.any(self.b_node_Ns_m <= 0.0) or np.any(self.mu_scale < 0.0):
+        self._check_node_arrays()
+        if not (np.all(self.b_node_Ns_m > 0.0) and np.all(self.mu_scale >= 0.0)):
             raise ConfigError("b_node_Ns_m/mu_scale", "b_node must be > 0, mu_scale >= 0")
 
     def _raise(self, status: int, t_hint: float) -> None:
+        if status == di.ERR_PARAM:
+            self._check_node_params()
+            raise ConfigError("b_node_Ns_m/mu_scale", "b_node must be > 0, mu_scale >= 0")
         t = self._info[di.I_T]
         if status == di.ERR_SLACK:
             j = int(self._info[di.I_SEG])
@@ -420,12 +455,14 @@ class DistributedModel:
         One L-stable SDIRK2 step per call, split only if Newton needs it (or error
         controlled with ``step_adaptive = True``).
 
+        :raises ConfigError: if ``dt_s`` is not > 0 or the node parameters are invalid.
         :raises OperatingRangeError: if a cable goes slack.
         :raises IntegrationError: if the integrator fails.
         """
         if not dt_s > 0.0:
             raise ConfigError("dt_s", f"must be > 0, got {dt_s}")
-        self._check_node_params()
+        if self.mu_scale is not self._checked_arrays[0] or self.b_node_Ns_m is not self._checked_arrays[1]:
+            self._check_node_arrays()
         t1 = self._t + dt_s
         st = _step_kernel(self._y, self._t, t1, float(u_Nm), float(tau_ext_Nm), self.n, self._d0,
                           self._theta_r, self.mu_scale, self.b_node_Ns_m, self.trans.mu,
@@ -443,9 +480,12 @@ class DistributedModel:
         """Offline run from the current state, starting at time ``t_s[0]``.
 
         Inputs are piecewise linear between the samples; outputs are sampled at ``t_s``.
-        ``adaptive=True``: error-controlled steps (never across a sample), else one step
-        per sample interval (split only on Newton failure). The model is left at the
-        final state.
+        ``adaptive=True``: error-controlled steps chosen by the error estimate alone (they
+        may span up to 8 sample intervals; outputs between step ends come from the
+        step's stage-value interpolant, see :mod:`models.distributed_dense`), with the
+        weighted RMS tolerance ``atol + rtol |y|`` (``atol`` in m and rad); else one step
+        per sample interval (split only on Newton failure). ``rtol``/``atol`` also set the
+        Newton tolerance in fixed mode. The model is left at the final state.
 
         :raises ConfigError: on malformed inputs.
         :raises OperatingRangeError: on cable slack. :raises IntegrationError: on failure.
@@ -468,9 +508,15 @@ class DistributedModel:
         obs = np.zeros((ns, 6))
         seg = np.zeros((ns if record_tensions else 1, self._m))
         stats = np.zeros(di.N_STATS)
+        # the run continues the integrator state of step() (Newton contraction estimate,
+        # step-size proposal) like one more step() would
+        stats[di.S_ETA] = self._stats[di.S_ETA]
+        stats[di.S_H] = self._stats[di.S_H]
         st = _run(self._y, t, u, te, self.n, self._d0, self._c_node, self._b_ring, self._bp,
                   float(rtol), float(atol), bool(adaptive), self._work, stats, self._info, obs,
                   seg, record_tensions)
+        self._stats[di.S_ETA] = stats[di.S_ETA]
+        self._stats[di.S_H] = stats[di.S_H]
         if st != di.OK:
             self._raise(st, float(t[-1]))
         self._t = float(t[-1])
@@ -567,12 +613,15 @@ class DistributedModel:
 @njit(cache=True)
 def _run(y, t, u, te, n, d0, c_node, b_ring, bp, rtol, atol, adaptive, work, stats, info, obs,
          seg, record) -> int:
+    if adaptive:
+        return dense.run_dense(y, t, u, te, n, d0, c_node, b_ring, bp, rtol, atol, work, stats,
+                               info, obs, seg, record)
     f_seg = work[di.W_FS][: 2 * n + 2]
     di.observe(y, u[0], n, d0, bp, f_seg, obs[0])
     seg[0, :] = f_seg
     for i in range(t.shape[0] - 1):
         st = di.advance(y, t[i], t[i + 1], u[i], u[i + 1], te[i], te[i + 1], n, d0, c_node,
-                        b_ring, bp, rtol, atol, adaptive, work, stats, info)
+                        b_ring, bp, rtol, atol, False, work, stats, info)
         if st != di.OK:
             return st
         di.observe(y, u[i + 1], n, d0, bp, f_seg, obs[i + 1])

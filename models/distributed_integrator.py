@@ -12,8 +12,15 @@ solution ``y_hat = y_n + h K_1``, i.e. ``e = h gamma (K_2 - K_1)``, filtered thr
 ``(M - h gamma J)^-1 M`` (Shampine's filter, removes the spurious stiff part), RMS
 norm with weights ``atol_i + rtol |y_i|``.
 
-Fixed mode: one step per interval; an interval is split (halving) only when Newton
-does not converge, and the step grows back afterwards.
+Newton: stops when the contraction-corrected increment (Hairer & Wanner IV.8) is below
+``NEWTON_TOL`` in that weighted norm. Predictor: a step of the same size as the last one
+starts from the last step's stage increments (this carries the response to the input
+jump of a held input, which a derivative extrapolation cannot); other steps extrapolate
+with the last stage derivative.
+
+Fixed mode: one step per interval; an interval is split (step quartered) only when
+Newton does not converge, and the step grows back afterwards. The offline adaptive run
+across sample times is :mod:`models.distributed_dense`.
 
 Every function returns a status code instead of raising (Numba); ``models.distributed``
 turns codes into exceptions.
@@ -38,11 +45,15 @@ OK = 0
 ERR_SLACK = 1
 ERR_NEWTON = 2
 ERR_NONFINITE = 3
+ERR_PARAM = 4       # a per-node parameter out of range (checked by the model's step kernel)
 
 # rows of the work array
-(W_Y0, W_Z1, W_Z2, W_PSI, W_K1, W_F, W_M, W_ATOL, W_DEL, W_R, W_E, W_LO, W_DI, W_UP,
- W_RHS, W_CP, W_ZZ, W_WW, W_FS, W_KT, W_JLO, W_JDI, W_JUP, W_KP) = range(24)
+(W_Y0, W_Z1, W_Z2, W_PSI, W_K1, W_F, W_M, W_ATOL, W_DEL, W_R, W_E, W_CP, W_ZZ, W_WW,
+ W_FS, W_KT, W_JLO, W_JDI, W_JUP, W_KP, W_P1, W_P2, W_HP, W_YI) = range(24)
 N_WORK = 24
+# W_KP: last stage derivative; W_P1, W_P2: stage increments Z1 - Y0 and Z2 - Z1 of the last
+# accepted step; W_HP[0]: that step's size [s] (0 = none). Zeroed by the model's reset.
+# W_YI: interpolated state (dense output).
 
 # stats slots
 S_STEPS, S_RHS, S_REJECT, S_NEWTON_FAIL, S_H, S_ETA = range(6)
@@ -51,7 +62,7 @@ N_STATS = 6
 I_T, I_SEG, I_TENSION = range(3)
 
 NEWTON_MAXIT = 12
-NEWTON_TOL = 1e-4
+NEWTON_TOL = 1e-3
 H_MIN_S = 1e-12
 
 
@@ -73,64 +84,64 @@ def _damp_out(bp) -> float:
 
 
 @njit(cache=True)
-def _assemble(n, hg, R, work, bp):
-    """Build the cyclic tridiagonal (lo, di, up, rhs) of ``(M - hg J) D = -R``."""
+def _solve(n, hg, R, work, bp, D):
+    """Solve ``(M - hg J) D = -R`` (cyclic tridiagonal + eliminated velocities).
+
+    Thomas algorithm on the chain rows ``1..m-1`` with two right-hand sides (``-R`` and
+    the border column of ``q_in``), then one Schur-complement scalar for ``q_in``; the
+    matrix entries are formed on the fly from the ring Jacobian.
+    """
     m = 2 * n + 2
+    jo = n + 1
     M = work[W_M]
-    lo = work[W_LO]
-    di = work[W_DI]
-    up = work[W_UP]
-    rhs = work[W_RHS]
     jl = work[W_JLO]
     jd = work[W_JDI]
     ju = work[W_JUP]
-    for j in range(m):
-        lo[j] = -hg * jl[j]
-        di[j] = M[j] - hg * jd[j]
-        up[j] = -hg * ju[j]
-        rhs[j] = -R[j]
-    if _second_order_in(bp):
-        A = (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
-        di[0] = A - hg * jd[0]
-        rhs[0] = -R[m] - A * R[0]
-    if _second_order_out(bp):
-        jo = n + 1
-        A = (bp[BP_J_OUT] + hg * _damp_out(bp)) / hg
-        di[jo] = A - hg * jd[jo]
-        rhs[jo] = -R[m + 1] - A * R[jo]
-
-
-@njit(cache=True)
-def _solve(n, hg, R, work, bp, D):
-    """Solve ``(M - hg J) D = -R`` (cyclic tridiagonal + eliminated velocities)."""
-    m = 2 * n + 2
-    _assemble(n, hg, R, work, bp)
-    lo = work[W_LO]
-    di = work[W_DI]
-    up = work[W_UP]
-    rhs = work[W_RHS]
     cp = work[W_CP]
     z = work[W_ZZ]
     w = work[W_WW]
-    # Thomas on rows 1..m-1 with two right-hand sides: rhs and border column
-    inv = 1.0 / di[1]
-    z[1] = rhs[1] * inv
-    w[1] = lo[1] * inv
-    cp[1] = up[1] * inv
-    for j in range(2, m - 1):
-        inv = 1.0 / (di[j] - lo[j] * cp[j - 1])
-        z[j] = (rhs[j] - lo[j] * z[j - 1]) * inv
-        w[j] = -lo[j] * w[j - 1] * inv
-        cp[j] = up[j] * inv
-    j = m - 1
-    inv = 1.0 / (di[j] - lo[j] * cp[j - 1])
-    z[j] = (rhs[j] - lo[j] * z[j - 1]) * inv
-    w[j] = (up[j] - lo[j] * w[j - 1]) * inv
-    cp[j] = 0.0
+    di0 = M[0] - hg * jd[0]
+    r0 = -R[0]
+    if _second_order_in(bp):
+        A = (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
+        di0 = A - hg * jd[0]
+        r0 = -R[m] - A * R[0]
+    dio = M[jo] - hg * jd[jo]
+    ro = -R[jo]
+    if _second_order_out(bp):
+        A = (bp[BP_J_OUT] + hg * _damp_out(bp)) / hg
+        dio = A - hg * jd[jo]
+        ro = -R[m + 1] - A * R[jo]
+    # forward sweep; border column entries: row 1 (lower neighbour q_in), row m-1 (upper)
+    zp = 0.0
+    wp = 0.0
+    cpp = 0.0
+    for j in range(1, m):
+        lo = -hg * jl[j]
+        if j == jo:
+            d = dio
+            r = ro
+        else:
+            d = M[j] - hg * jd[j]
+            r = -R[j]
+        inv = 1.0 / (d - lo * cpp)
+        zp = (r - lo * zp) * inv
+        if j == 1:
+            wp = lo * inv
+        elif j == m - 1:
+            wp = (-hg * ju[j] - lo * wp) * inv
+        else:
+            wp = -lo * wp * inv
+        cpp = -hg * ju[j] * inv if j < m - 1 else 0.0
+        z[j] = zp
+        w[j] = wp
+        cp[j] = cpp
     for j in range(m - 2, 0, -1):
         z[j] -= cp[j] * z[j + 1]
         w[j] -= cp[j] * w[j + 1]
-    x0 = (rhs[0] - up[0] * z[1] - lo[0] * z[m - 1]) / (di[0] - up[0] * w[1] - lo[0] * w[m - 1])
+    up0 = -hg * ju[0]
+    lo0 = -hg * jl[0]
+    x0 = (r0 - up0 * z[1] - lo0 * z[m - 1]) / (di0 - up0 * w[1] - lo0 * w[m - 1])
     D[0] = x0
     for j in range(1, m):
         D[j] = z[j] - w[j] * x0
@@ -194,11 +205,13 @@ def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -
 
 
 @njit(cache=True)
-def _try_step(n, y, t, h, u_a, u_b, ta, tb, t0, t1, d0, c_node, b_node, bp, work, rtol,
-              adaptive, stats) -> float:
-    """One SDIRK2 step from (t, y) into work[W_Z2]. Returns error norm (inf on Newton failure).
+def try_step(n, y, h, u1, e1, u2, e2, d0, c_node, b_node, bp, work, rtol, adaptive,
+             stats) -> float:
+    """One SDIRK2 step of size ``h`` from ``y`` into work[W_Z2] (stages in W_Z1, W_Z2).
 
-    Inputs are linearly interpolated between (t0, u_a/ta) and (t1, u_b/tb).
+    :param u1, e1: input and external torque at the first stage time ``t + gamma h``.
+    :param u2, e2: the same at ``t + h``.
+    :returns: the error norm (0 if not ``adaptive``; inf on Newton failure).
     """
     m = 2 * n + 2
     g = GAMMA
@@ -209,27 +222,26 @@ def _try_step(n, y, t, h, u_a, u_b, ta, tb, t0, t1, d0, c_node, b_node, bp, work
     psi = work[W_PSI]
     K1 = work[W_K1]
     Kp = work[W_KP]
-    span = t1 - t0
+    P1 = work[W_P1]
+    P2 = work[W_P2]
+    # predictor: a step of the same size as the last one repeats its stage increments
+    # (this also carries the response to an input jump of a held input, which the stage
+    # derivative cannot); otherwise extrapolate with the last stage derivative
+    repeat = abs(work[W_HP, 0] - h) <= 1e-6 * h
     for i in range(m + 2):
         Y0[i] = y[i]
     # stage 1
-    s1 = (t + hg - t0) / span if span > 0 else 1.0
-    u1 = u_a + (u_b - u_a) * s1
-    e1 = ta + (tb - ta) * s1
     for i in range(m + 2):
         psi[i] = Y0[i]
-        Z1[i] = Y0[i] + hg * Kp[i]
+        Z1[i] = Y0[i] + (P1[i] if repeat else hg * Kp[i])
     if not _newton(n, Z1, psi, hg, u1, e1, d0, c_node, b_node, bp, work, rtol, stats):
         return math.inf
     for i in range(m + 2):
         K1[i] = (Z1[i] - Y0[i]) / hg
     # stage 2
-    s2 = (t + h - t0) / span if span > 0 else 1.0
-    u2 = u_a + (u_b - u_a) * s2
-    e2 = ta + (tb - ta) * s2
     for i in range(m + 2):
         psi[i] = Y0[i] + h * (1.0 - g) * K1[i]
-        Z2[i] = Y0[i] + h * K1[i]
+        Z2[i] = (Z1[i] + P2[i]) if repeat else (Y0[i] + h * K1[i])
     if not _newton(n, Z2, psi, hg, u2, e2, d0, c_node, b_node, bp, work, rtol, stats):
         return math.inf
     if not adaptive:
@@ -261,6 +273,62 @@ def segment_forces(y, n, d0, bp, f_seg):
 
 
 @njit(cache=True)
+def setup(n, b_node, bp, atol, work):
+    """Mass diagonal and absolute-tolerance vector into ``work`` (once per call)."""
+    m = 2 * n + 2
+    mass_diag(n, b_node, bp, work[W_M])
+    atolv = work[W_ATOL]
+    for j in range(m + 2):
+        atolv[j] = atol
+    atolv[m] = atol * 1e3
+    atolv[m + 1] = atol * 1e3
+
+
+@njit(cache=True)
+def accept(n, h, t_new, y, d0, bp, work, stats, info) -> int:
+    """Commit the step in ``work`` (size ``h``, ending at ``t_new``) into ``y``; check slack.
+
+    :returns: OK, ERR_SLACK or ERR_NONFINITE (``info`` filled).
+    """
+    m = 2 * n + 2
+    hg = h * GAMMA
+    Y0 = work[W_Y0]
+    Z1 = work[W_Z1]
+    Z2 = work[W_Z2]
+    psi = work[W_PSI]
+    Kp = work[W_KP]
+    P1 = work[W_P1]
+    P2 = work[W_P2]
+    for i in range(m + 2):
+        Kp[i] = (Z2[i] - psi[i]) / hg
+        P1[i] = Z1[i] - Y0[i]
+        P2[i] = Z2[i] - Z1[i]
+        y[i] = Z2[i]
+    work[W_HP, 0] = h
+    stats[S_STEPS] += 1.0
+    fseg = work[W_FS][:m]
+    segment_forces(y, n, d0, bp, fseg)
+    jm, fm = min_tension(fseg)
+    if not math.isfinite(fm):
+        info[I_T] = t_new
+        return ERR_NONFINITE
+    if fm <= 0.0:
+        info[I_T] = t_new
+        info[I_SEG] = jm
+        info[I_TENSION] = fm
+        return ERR_SLACK
+    return OK
+
+
+@njit(cache=True)
+def step_factor(err: float) -> float:
+    """Step-size factor after an error norm ``err`` (first-order estimate, safety 0.9)."""
+    if err <= 1e-8:
+        return 4.0
+    return min(4.0, max(0.2, 0.9 / math.sqrt(err)))
+
+
+@njit(cache=True)
 def advance(y, t0, t1, u_a, u_b, ta, tb, n, d0, c_node, b_node, bp, rtol, atol,
             adaptive, work, stats, info) -> int:
     """Advance ``y`` in place from ``t0`` to ``t1``.
@@ -271,26 +339,20 @@ def advance(y, t0, t1, u_a, u_b, ta, tb, n, d0, c_node, b_node, bp, rtol, atol,
     :param info: (3,) filled on failure: time [s], segment index, tension [N].
     :returns: status code (OK, ERR_SLACK, ERR_NEWTON, ERR_NONFINITE).
     """
-    m = 2 * n + 2
-    mass_diag(n, b_node, bp, work[W_M])
-    atolv = work[W_ATOL]
-    for j in range(m + 2):
-        atolv[j] = atol
-    atolv[m] = atol * 1e3
-    atolv[m + 1] = atol * 1e3
+    setup(n, b_node, bp, atol, work)
     span = t1 - t0
     t = t0
     h = span if not adaptive else min(stats[S_H], span) if stats[S_H] > 0 else span * 0.1
     h_prop = h
-    Z2 = work[W_Z2]
-    Kp = work[W_KP]
-    fseg = work[W_FS][:m]
     while t < t1:
         remaining = t1 - t
         if h >= remaining * (1.0 - 1e-9):
             h = remaining
-        err = _try_step(n, y, t, h, u_a, u_b, ta, tb, t0, t1, d0, c_node, b_node, bp, work,
-                        rtol, adaptive, stats)
+        s1 = (t + GAMMA * h - t0) / span
+        s2 = (t + h - t0) / span
+        err = try_step(n, y, h, u_a + (u_b - u_a) * s1, ta + (tb - ta) * s1,
+                       u_a + (u_b - u_a) * s2, ta + (tb - ta) * s2, d0, c_node, b_node, bp,
+                       work, rtol, adaptive, stats)
         if not math.isfinite(err):
             stats[S_NEWTON_FAIL] += 1.0
             h *= 0.25
@@ -305,26 +367,12 @@ def advance(y, t0, t1, u_a, u_b, ta, tb, n, d0, c_node, b_node, bp, rtol, atol,
                 info[I_T] = t
                 return ERR_NEWTON
             continue
-        # accept
-        hg = h * GAMMA
-        for i in range(m + 2):
-            Kp[i] = (Z2[i] - work[W_PSI][i]) / hg
-            y[i] = Z2[i]
         t = t + h if h < remaining else t1
-        stats[S_STEPS] += 1.0
-        segment_forces(y, n, d0, bp, fseg)
-        jm, fm = min_tension(fseg)
-        if not math.isfinite(fm):
-            info[I_T] = t
-            return ERR_NONFINITE
-        if fm <= 0.0:
-            info[I_T] = t
-            info[I_SEG] = jm
-            info[I_TENSION] = fm
-            return ERR_SLACK
+        st = accept(n, h, t, y, d0, bp, work, stats, info)
+        if st != OK:
+            return st
         if adaptive:
-            fac = 4.0 if err <= 1e-8 else min(4.0, max(0.2, 0.9 / math.sqrt(err)))
-            h_prop = h * fac
+            h_prop = h * step_factor(err)
             h = h_prop
         else:
             h = min(2.0 * h, span)

@@ -61,10 +61,12 @@ OUT_TESTBED_MASSLESS = 0
 OUT_TESTBED_INERTIA = 1
 OUT_LINK = 2
 
-# |eps| below this: (|eps|^p) underflows relative to 1 for p >= 100 -> pure stick
-_EPS_STICK = 0.4
-# |eps| above this: |eps|^-p negligible -> pure Coulomb sliding
-_EPS_SLIDE = 2.5
+# For p >= 100: below |eps| = 0.65, |eps|^p < 2e-19 and g = F (1 - (1 + |eps|^p)^(-1/p))
+# ~ F |eps|^p / p is below the rounding of F -> exact stick (g and slopes 0); above
+# |eps| = 1.55, |eps|^-p < 1e-19 -> exact Coulomb sliding. Results are unchanged to
+# rounding; the cut-offs only skip the power and logarithm evaluations.
+_EPS_STICK = 0.65
+_EPS_SLIDE = 1.55
 
 
 @njit(cache=True)
@@ -86,7 +88,7 @@ def _pow_p(a: float, p: float) -> float:
 def _expm1_neg(x: float) -> float:
     """``expm1(-x)`` for 0 <= x <= ln(2)/p; 5-term series when x < 0.015 (error < 1e-12)."""
     if x < 0.015:
-        return -x * (1.0 - 0.5 * x * (1.0 - x / 3.0 * (1.0 - 0.25 * x * (1.0 - 0.2 * x))))
+        return -x * (1.0 - 0.5 * x * (1.0 - x * (1.0 / 3.0) * (1.0 - 0.25 * x * (1.0 - 0.2 * x))))
     return math.expm1(-x)
 
 
@@ -107,7 +109,7 @@ def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
     a = abs(eps)
     sgn = 1.0 if eps >= 0.0 else -1.0
     if a < _EPS_STICK and p >= 100.0:
-        # a^p < 0.4^100 ~ 1e-40: g = F (1 - (1+a^p)^(-1/p)) and its slopes vanish
+        # a^p < 0.65^100 ~ 2e-19: g = F (1 - (1+a^p)^(-1/p)) and its slopes vanish
         return 0.0, 0.0, 0.0
     elif a <= 1.0:
         t = _pow_p(a, p)
@@ -115,19 +117,22 @@ def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
         em = _expm1_neg(l1 / p)
         # s = (1+t)^(-1/p) = 1 + em;  g = F (1 - s);  dpsi/deps = s / (1 + t)
         g = -F * em
-        phi_F = (t - em) / (1.0 + t)
-        phi_N = -eps * (t / (1.0 + t)) * (1.0 + em)
+        r = 1.0 / (1.0 + t)
+        phi_F = (t - em) * r
+        phi_N = -eps * (t * r) * (1.0 + em)
     elif a > _EPS_SLIDE and p >= 100.0:
         g = F - N * sgn
-        phi_F = 1.0          # 1 - a^-(p+1) (...) with a^-p < 1e-39
+        phi_F = 1.0          # 1 - a^-(p+1) (...) with a^-p < 1e-19
         phi_N = -sgn
     else:
-        tp = _pow_p(1.0 / a, p)
+        ia = 1.0 / a
+        tp = _pow_p(ia, p)
         l1 = tp * (1.0 - 0.5 * tp) if tp < 1e-8 else math.log1p(tp)
         s = 1.0 + _expm1_neg(l1 / p)         # (1 + a^-p)^(-1/p)
         g = F - N * sgn * s
-        phi_F = 1.0 - (tp / a) * s / (1.0 + tp)
-        phi_N = -sgn * s / (1.0 + tp)
+        r = s / (1.0 + tp)
+        phi_F = 1.0 - (tp * ia) * r
+        phi_N = -sgn * r
     return g, phi_F + phi_N * c_n, -phi_F + phi_N * c_n
 
 

@@ -13,6 +13,9 @@ from models import distributed_integrator as di
 from models import distributed_rhs as rhs
 from models.distributed import (BoundaryParams, DistributedModel, InputMode, OutputMode,
                                 TransmissionParams, _node_coefficients)
+from models.distributed_dense import _resolved_step
+from models.distributed_ode import ode_problem
+from models.errors import ConfigError
 from models.link import LinkParams
 
 
@@ -165,3 +168,92 @@ def test_step_equals_simulate_fixed_with_held_input() -> None:
     ref = c.simulate(t2, u2, adaptive=True, rtol=1e-8, atol=1e-11)
     assert a.tau_out_Nm == pytest.approx(ref.tau_out_Nm[-1], abs=2e-3)
     assert a.q_in_rad == pytest.approx(ref.q_in_rad[-1], abs=1e-5)
+
+
+@pytest.mark.parametrize("in_mode, out_mode, j_out", [
+    (InputMode.TORQUE, OutputMode.TESTBED, 0.0), (InputMode.MOTOR, OutputMode.TESTBED, 0.05),
+    (InputMode.MOTOR, OutputMode.LINK, 0.0)])
+@pytest.mark.parametrize("sparse", [False, True])
+def test_ode_problem_is_the_model_equations_with_exact_jacobian(in_mode, out_mode, j_out, sparse) -> None:
+    """The solve_ivp-facing callables: dy/dt equals the independent numpy right-hand side,
+    and the Jacobian equals central differences of dy/dt in every column."""
+    n = 4
+    model = DistributedModel(TransmissionParams.uniform(n, 3.0, 150.0),
+                             BoundaryParams(input_mode=in_mode, output_mode=out_mode,
+                                            out_inertia_kg_m2=j_out, link=LinkParams()))
+    t = np.array([0.0, 1.0])
+    prob = ode_problem(model, t, np.array([1.0, 2.0]), np.array([0.1, 0.5]), sparse_jac=sparse)
+    d0, c_node, b_ring, bp = _model_arrays(model)
+    rng = np.random.default_rng(3)
+    y = np.zeros(2 * n + 4)
+    y[: 2 * n + 2] = rng.normal(0, 2e-5, 2 * n + 2)
+    y[0], y[n + 1] = 0.01, 0.008
+    y[-2:] = (0.3, -0.2)
+    f = prob.fun(0.25, y)
+    ref = rhs.rhs_numpy(y, 1.25, 0.2, n, d0, c_node, b_ring, bp)
+    assert np.allclose(f, ref, rtol=1e-9, atol=1e-9)
+    jac = prob.jac(0.25, y)
+    jac = jac.toarray() if sparse else jac
+    for col in range(2 * n + 4):
+        h = 1e-7 if col in (0, n + 1) or col >= 2 * n + 2 else 1e-9
+        yp, ym = y.copy(), y.copy()
+        yp[col] += h
+        ym[col] -= h
+        num = (prob.fun(0.25, yp) - prob.fun(0.25, ym)) / (2 * h)
+        assert np.allclose(jac[:, col], num, rtol=1e-4, atol=1e-3 * max(1.0, np.max(np.abs(num)))), col
+
+
+def test_adaptive_steps_end_at_input_kinks_and_jumps() -> None:
+    """Across-sample steps: a smooth input leaves the proposed step alone; a jump of the
+    piecewise-linear input inside the step (also before the first stage time, where the
+    stages would not see it) shortens the step to end on the last sample before it."""
+    t = np.arange(0.0, 0.02 + 5e-5, 1e-3)
+    smooth = 8.0 * np.sin(2 * np.pi * 1.1 * t)
+    zeros = np.zeros_like(t)
+    assert _resolved_step(t, smooth, zeros, 3, 0.0031, 0.008, 1e-4 * 8.0, 1e-4) == pytest.approx(0.008)
+    jump = np.where(t < 0.0045, 2.0, 5.0)       # ramp between the samples at 4 ms and 5 ms
+    h = _resolved_step(t, jump, zeros, 3, 0.0031, 0.008, 1e-6 * 5.0, 1e-6)
+    assert 0.0031 + h == pytest.approx(0.004)
+    # the external torque is checked the same way
+    h = _resolved_step(t, zeros, jump, 3, 0.0031, 0.008, 1e-6, 1e-6 * 5.0)
+    assert 0.0031 + h == pytest.approx(0.004)
+
+
+def test_adaptive_run_resolves_a_sharp_input_step() -> None:
+    """A 3 Nm input step over 1 us between two samples: the across-sample adaptive run at the
+    default tolerance agrees with a tight run and with fixed steps on a 10 us grid."""
+    trans = TransmissionParams.uniform(6, 3.0, 150.0)
+    t = np.sort(np.concatenate((np.arange(0.0, 0.4 + 5e-4, 1e-3), [0.2504 + 1e-6])))
+    u = np.where(t < 0.2504 + 5e-7, 2.0, 5.0) * np.minimum(t / 0.1, 1.0)
+    model = DistributedModel(trans, BoundaryParams())
+    run = model.simulate(t, u, adaptive=True)
+    model.reset()
+    tight = model.simulate(t, u, adaptive=True, rtol=1e-9, atol=1e-12)
+    tf = np.union1d(np.linspace(0.0, 0.4, 40001), t)
+    model.reset()
+    fine = model.simulate(tf, np.interp(tf, t, u), adaptive=False)
+    fine_at_t = np.interp(t, tf, fine.tau_out_Nm)
+    assert np.ptp(tight.tau_out_Nm[t > 0.2]) > 1.0           # the step does move the output
+    assert np.max(np.abs(run.tau_out_Nm - tight.tau_out_Nm)) < 1e-4
+    assert np.max(np.abs(fine_at_t - tight.tau_out_Nm)) < 1e-4
+
+
+def test_step_refuses_invalid_node_parameters() -> None:
+    """The per-node parameters are checked on every step (in the compiled kernel) and on
+    replacement (shape, dtype); the model stays usable once they are fixed."""
+    model = DistributedModel(TransmissionParams.uniform(3, 3.0, 150.0), BoundaryParams())
+    model.step(1e-3, 1.0)
+    model.b_node_Ns_m[2] = 0.0
+    with pytest.raises(ConfigError, match="b_node"):
+        model.step(1e-3, 1.0)
+    model.b_node_Ns_m[2] = 1.0
+    model.mu_scale[0] = np.nan
+    with pytest.raises(ConfigError, match="mu_scale"):
+        model.step(1e-3, 1.0)
+    model.mu_scale[0] = 1.0
+    model.mu_scale = np.ones(5)
+    with pytest.raises(ConfigError, match="mu_scale"):
+        model.step(1e-3, 1.0)
+    model.mu_scale = np.ones(6)
+    model.step(1e-3, 1.0)
+    assert model.t_s == pytest.approx(2e-3)
