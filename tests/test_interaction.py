@@ -65,5 +65,7 @@ def test_cli_parser_has_both_subcommands():
     experiment_cmd.add_arguments(parser)
     args = parser.parse_args(["interaction", "--quick", "--json"])
     assert args.experiment == "interaction" and args.quick and args.json
-    args = parser.parse_args(["paper"])
-    assert args.experiment == "paper"
+    args = parser.parse_args(["paper", "--out", "report_dir", "--quick"])
+    assert args.experiment == "paper" and str(args.out) == "report_dir" and args.quick
+    with pytest.raises(SystemExit):          # the report directory is required
+        parser.parse_args(["paper"])
