@@ -6,9 +6,16 @@ Significance: the held-out data are cut into contiguous blocks (``BLOCK_S`` seco
 never crossing a run); a block bootstrap (``N_BOOT`` resamples of blocks) of
 ``1 - sqrt(sum SSE_after / sum SSE_before)`` gives a one-sided 95 % lower bound. A
 candidate is *significant* when that bound is > 0 and the point improvement is at
-least ``MATERIAL`` (5 % lower held-out RMSE). Each round refits, on the training data,
-the baseline's linear parameters together with every selected effect and the
-candidate (the baseline's nonlinear shape alpha, eta_s stays fixed).
+least ``MATERIAL`` (5 % lower held-out RMSE).
+
+Each candidate is scored as an augmented model refitted on the training data: the
+baseline's parameters -- linear ones *and* its nonlinear shape alpha, eta_s
+(:mod:`models.baseline_shape`) -- jointly with every selected effect and the candidate. A
+baseline fitted alone bends its viscous term and Stribeck shape to absorb what it lacks;
+only the joint refit gives an overlapping candidate (drag at speed) its full share. A
+latency candidate realigns the late channel (lag on a grid, refined to whole samples
+on consecutive training samples) and the whole model is re-evaluated on the realigned
+signals (:mod:`models.closure_model`).
 
 Catalogue first: when both catalogue and empirical candidates are significant, the
 best catalogue effect is taken if it achieves at least ``PREFER_CATALOGUE`` of the best
@@ -24,8 +31,9 @@ from typing import Callable
 
 import numpy as np
 
+from models.closure_model import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
 from models.effects import EffectSpec, FeatureContext, Target, catalogue_for
-from models.identification import BaselineFit, ModelKind, fit_baseline
+from models.identification import BaselineFit, ModelKind, fit_baseline, named_params
 from models.residual_trace import describe_curve, empirical_candidates, is_empirical
 from models.signals import Signals
 
@@ -34,8 +42,9 @@ PREFER_CATALOGUE = 0.7
 BLOCK_S = 2.0
 N_BOOT = 400
 MAX_ROUNDS = 4
-RIDGE = 1e-4
 MAX_SAMPLES = 20000
+#: at most this many consecutive training samples for the latency search
+LAG_MAX_SAMPLES = 100000
 
 Progress = Callable[[int, int, str], None]
 
@@ -59,6 +68,8 @@ class Candidate:
     F_train: np.ndarray | None = None
     F_test: np.ndarray | None = None
     description: dict | None = None
+    #: the augmented model's baseline parameters refitted with this candidate (friction path)
+    baseline_params: dict[str, float] | None = None
 
     def summary(self) -> dict:
         """JSON-able summary."""
@@ -85,6 +96,10 @@ class TargetResult:
     candidates: list[Candidate] = field(default_factory=list)
     selected: list[Candidate] = field(default_factory=list)
     theta: np.ndarray | None = None
+    #: friction path: the baseline's parameters as refitted in the final augmented model
+    #: (linear ones, alpha_s_rad, eta_s_rad_s, zeta_s); the selected effects' coefficients
+    #: belong with these, not with the baseline fitted alone
+    params_after: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -130,97 +145,84 @@ def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarra
     return point, float(np.quantile(boots, 0.05))
 
 
-def _scaled_lstsq(X: np.ndarray, y: np.ndarray, ridge_cols: np.ndarray) -> np.ndarray:
-    """Least squares via the normal equations of the column-scaled problem.
-
-    Columns flagged in ``ridge_cols`` (the empirical curves) get a ridge of
-    ``RIDGE * n``; every column gets a 1e-10 relative ridge for rank-deficient cases.
-    """
-    scale = np.maximum(np.sqrt((X ** 2).mean(axis=0)), 1e-12)
-    Xs = X / scale
-    G = Xs.T @ Xs
-    n = X.shape[0]
-    G[np.diag_indices_from(G)] += 1e-10 * n + RIDGE * n * ridge_cols
-    try:
-        sol = np.linalg.solve(G, Xs.T @ y)
-    except np.linalg.LinAlgError:
-        sol = np.linalg.pinv(G) @ (Xs.T @ y)
-    return sol / scale
+def _best_shape(spec: EffectSpec, aug: Augmented, Q: np.ndarray,
+                r0: np.ndarray) -> tuple[dict | None, np.ndarray | None]:
+    """The shape of ``spec``'s grid whose basis best explains the training residual ``r0``
+    of the current model (projected out: ``Q`` spans its design), with its basis."""
+    best: tuple[float, dict | None, np.ndarray | None] = (math.inf, None, None)
+    for sh in spec.grid:
+        F = aug.features(spec, sh, aug.realign)
+        Ft = F - Q @ (Q.T @ F)
+        c = scaled_lstsq(Ft, r0, np.full(Ft.shape[1], is_empirical(spec)))
+        sse = float(np.sum((r0 - Ft @ c) ** 2))
+        if sse < best[0]:
+            best = (sse, sh, F)
+    return best[1], best[2]
 
 
-def _target_data(t: Target, sig: Signals, baseline: BaselineFit) -> tuple[np.ndarray, np.ndarray]:
-    if t == Target.TAU_OUT:
-        return baseline.basis(sig), sig.tau_out_Nm
-    assert sig.q_in_rad is not None
-    return np.column_stack([sig.q_in_rad, sig.q_out_rad, np.ones(len(sig))]), sig.tau_in_Nm + sig.tau_out_Nm
-
-
-def _close_target(t: Target, specs: list[EffectSpec], train: Signals, test: Signals, idx_tr: np.ndarray,
-                  idx_te: np.ndarray, ctx: FeatureContext, labels: np.ndarray, progress: Progress | None,
-                  step0: int, total: int) -> tuple[TargetResult, int]:
+def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
+                  progress: Progress | None, step0: int, total: int) -> tuple[TargetResult, int]:
     """Greedy closure of one target. Features are computed on the full-rate signals
-    (time shifts stay exact) and fitted on the decimated rows ``idx_tr`` / ``idx_te``."""
-    train_d, test_d = train.take(idx_tr), test.take(idx_te)
-    X0, y = _target_data(t, train_d, ctx.baseline)
-    X0t, yt = _target_data(t, test_d, ctx.baseline)
-    blocks_tr: list[np.ndarray] = [X0]
-    blocks_te: list[np.ndarray] = [X0t]
-    ridge: list[np.ndarray] = [np.zeros(X0.shape[1], bool)]
-    fixed_tr, fixed_te = np.zeros(len(y)), np.zeros(len(yt))
-    theta = _scaled_lstsq(X0, y, ridge[0])
-    pred_t = X0t @ theta
-    before = pred_t.copy()
-    res = TargetResult(t, yt, before, pred_t, _rmse(yt - pred_t), float(np.max(np.abs(yt - pred_t))),
+    (time shifts stay exact) and fitted on the decimated rows."""
+    d = aug.data
+    if aug.theta is None:      # elastic path: its linear fit
+        X0 = aug.design_train()
+        aug.theta = scaled_lstsq(X0, d.y_Nm, np.zeros(X0.shape[1], bool))
+    theta = aug.theta
+    pred_t = aug.design_test() @ theta
+    yt = d.yt_Nm
+    res = TargetResult(d.target, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t), float(np.max(np.abs(yt - pred_t))),
                        math.nan, math.nan)
+    if d.target == Target.TAU_OUT:
+        res.params_after = named_params(d.kind, theta, aug.alpha_s_rad, aug.eta_s_rad_s)
     remaining = list(specs)
     step = step0
     for rnd in range(1, MAX_ROUNDS + 1):
-        Xc = np.hstack(blocks_tr)
+        Xc = aug.design_train()
         Q, _ = np.linalg.qr(Xc / np.maximum(np.sqrt((Xc ** 2).mean(axis=0)), 1e-12))
-        r0 = (y - fixed_tr) - Q @ (Q.T @ (y - fixed_tr))
+        r0 = d.y_Nm - Q @ (Q.T @ d.y_Nm)
         r_before = yt - pred_t
         tried: list[Candidate] = []
+        fits: dict[int, tuple[AugmentedFit, Realign | None, np.ndarray | None, dict]] = {}
         for spec in remaining:
             step += 1
             if progress:
                 progress(step, total, f"round {rnd}: {spec.name}")
-            best = (math.inf, None, None)
-            for shape in spec.grid:
-                F = spec.features(train, ctx, shape)[idx_tr] if spec.full_rate else spec.features(train_d, ctx, shape)
-                Ft = F - Q @ (Q.T @ F)
-                if spec.fixed_gain:      # enters with coefficient 1, nothing to fit
-                    sse = float(np.sum((r0 - Ft.sum(axis=1)) ** 2))
-                else:
-                    c = _scaled_lstsq(Ft, r0, np.full(Ft.shape[1], is_empirical(spec)))
-                    sse = float(np.sum((r0 - Ft @ c) ** 2))
-                if sse < best[0]:
-                    best = (sse, shape, F)
-            _, shape, F = best
-            if F is None:
-                continue
-            Fte = spec.features(test, ctx, shape)[idx_te] if spec.full_rate else spec.features(test_d, ctx, shape)
-            if spec.fixed_gain:
-                F, Fte = F.sum(axis=1, keepdims=True), Fte.sum(axis=1, keepdims=True)
-                th = _scaled_lstsq(np.hstack(blocks_tr), y - fixed_tr - F[:, 0], np.concatenate(ridge))
-                p_after = np.hstack(blocks_te) @ th + fixed_te + Fte[:, 0]
-                coef = np.zeros(0)
+            realign = aug.realign
+            F: np.ndarray | None = None
+            Fte: np.ndarray | None = None
+            ridge_F: np.ndarray | None = None
+            if spec.realigns:
+                if d.target != Target.TAU_OUT or aug.realign is not None:
+                    continue
+                realign = aug.best_lag(spec.grid, decimation_index(len(d.train), LAG_MAX_SAMPLES))
+                shape: dict = realign.as_shape()
             else:
-                rc = np.concatenate(ridge + [np.full(F.shape[1], is_empirical(spec))])
-                th = _scaled_lstsq(np.hstack(blocks_tr + [F]), y - fixed_tr, rc)
-                p_after = np.hstack(blocks_te + [Fte]) @ th + fixed_te
-                coef = th[-F.shape[1]:] * spec.loss_sign
-            r_after = yt - p_after
+                sh, F = _best_shape(spec, aug, Q, r0)
+                if sh is None or F is None:
+                    continue
+                shape = sh
+                Fte = aug.features(spec, shape, realign, test=True)
+                ridge_F = np.full(F.shape[1], is_empirical(spec))
+            fit = aug.fit(F, Fte, ridge_F, realign)
+            th = fit.theta
+            k = 0 if F is None else F.shape[1]
+            coef = th[len(th) - k:] * spec.loss_sign
+            r_after = yt - fit.pred_test_Nm
             imp, lo = block_bootstrap(r_before, r_after, labels)
-            cand = Candidate(spec.name, list(spec.depends_on), t, rnd,
-                             {k: v for k, v in shape.items() if k != "knots"},
+            cand = Candidate(spec.name, list(spec.depends_on), d.target, rnd,
+                             {key: v for key, v in shape.items() if key != "knots"},
                              {n: float(c) for n, c in zip(spec.coef_names, coef)} if not is_empirical(spec) else {},
                              _rmse(r_after), float(np.max(np.abs(r_after))), imp, lo,
                              bool(lo > 0.0 and imp >= MATERIAL), spec, F, Fte)
-            if is_empirical(spec):
-                knots = np.array([float(k) for k in str(shape["knots"]).split(",")])
-                cand.description = describe_curve(spec.depends_on[0], knots, th[-F.shape[1]:])
+            if d.target == Target.TAU_OUT:
+                cand.baseline_params = named_params(d.kind, th, fit.alpha_s_rad, fit.eta_s_rad_s)
+            if is_empirical(spec) and k:
+                knots = np.array([float(x) for x in str(shape["knots"]).split(",")])
+                cand.description = describe_curve(spec.depends_on[0], knots, th[len(th) - k:])
                 cand.description["knots"] = knots.tolist()
-                cand.description["curve"] = th[-F.shape[1]:].tolist()
+                cand.description["curve"] = th[len(th) - k:].tolist()
+            fits[id(cand)] = (fit, realign, ridge_F, shape)
             tried.append(cand)
         res.candidates.extend(tried)
         sig_c = [c for c in tried if c.significant]
@@ -234,17 +236,14 @@ def _close_target(t: Target, specs: list[EffectSpec], train: Signals, test: Sign
             win = best_cat
         else:
             win = best_emp
-        assert win is not None and win.F_train is not None and win.F_test is not None and win.spec is not None
+        assert win is not None
         res.selected.append(win)
-        if win.spec.fixed_gain:
-            fixed_tr = fixed_tr + win.F_train[:, 0]
-            fixed_te = fixed_te + win.F_test[:, 0]
-        else:
-            blocks_tr.append(win.F_train)
-            blocks_te.append(win.F_test)
-            ridge.append(np.full(win.F_train.shape[1], is_empirical(win.spec)))
-        theta = _scaled_lstsq(np.hstack(blocks_tr), y - fixed_tr, np.concatenate(ridge))
-        pred_t = np.hstack(blocks_te) @ theta + fixed_te
+        wfit, wrealign, wridge, wshape = fits[id(win)]
+        assert win.spec is not None
+        aug.add(win.spec, wshape, wridge, wrealign, wfit)
+        if win.baseline_params is not None:
+            res.params_after = win.baseline_params
+        pred_t, theta = wfit.pred_test_Nm, wfit.theta
         remaining = [s for s in remaining if s.name != win.effect or s.depends_on != tuple(win.depends_on)]
         for c in tried:      # free memory of the losers
             if c is not win:
@@ -282,10 +281,23 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     if train.deflection_rad is not None and test.deflection_rad is not None:
         specs[Target.ELASTIC] = [s for s in catalogue_for(train) + emp if s.target == Target.ELASTIC]
     total = sum(len(v) for v in specs.values()) * 2
+    v95 = float(np.percentile(np.abs(train_d.dq_out_rad_s), 95))
     targets: dict[Target, TargetResult] = {}
     step = 0
     for t, sp in specs.items():
-        targets[t], step = _close_target(t, sp, train, test, idx_tr, idx_te, ctx, labels, progress, step, total)
+        X0: np.ndarray | None = None
+        X0t: np.ndarray | None = None
+        if t == Target.TAU_OUT:
+            y, yt = train_d.tau_out_Nm, test_d.tau_out_Nm
+        else:
+            assert train_d.q_in_rad is not None and test_d.q_in_rad is not None
+            y, yt = train_d.tau_in_Nm + train_d.tau_out_Nm, test_d.tau_in_Nm + test_d.tau_out_Nm
+            X0 = np.column_stack([train_d.q_in_rad, train_d.q_out_rad, np.ones(len(train_d))])
+            X0t = np.column_stack([test_d.q_in_rad, test_d.q_out_rad, np.ones(len(test_d))])
+        aug = Augmented(TargetData(t, kind, train, test, idx_tr, idx_te, y, yt, X0, X0t, v95), ctx,
+                        baseline.alpha_s_rad, baseline.eta_s_rad_s,
+                        theta=baseline.theta.copy() if t == Target.TAU_OUT else None)
+        targets[t], step = _close_target(aug, sp, labels, progress, step, total)
     trace = []
     for c in targets[Target.TAU_OUT].candidates:
         if c.round == 1 and (is_empirical(c.spec) or c.effect == "sensor_latency"):

@@ -4,7 +4,9 @@ Each entry states a mechanism, a parametric form and the signals it depends on (
 ``depends_on`` words of the closure). Forms are linear in their coefficients once a
 few *shape* parameters (time constants, lags) are fixed; the closure searches the
 shape grid on the training data and solves the coefficients by least squares together
-with the baseline's linear parameters.
+with the baseline's parameters (its nonlinear shape refitted too, models.baseline_shape).
+``sensor_latency`` has no basis: it names the late channel and its lag, and the closure
+re-evaluates the whole model on the realigned signals (models.closure_model).
 
 Sign convention: an effect is an extra transmission loss torque ``tau_e`` [Nm] acting
 like friction, ``tau_out = baseline - tau_e``; the feedforward *adds* ``tau_e`` to the
@@ -96,7 +98,8 @@ class EffectSpec:
     target: Target = Target.TAU_OUT
     needs: tuple[str, ...] = ()
     loss_sign: float = -1.0     # residual contribution = loss_sign * basis @ coef
-    fixed_gain: bool = False    # True: the basis enters with coefficient 1 (nothing fitted)
+    realigns: bool = False      # True: the shape names a late channel and its lag; the baseline is
+                                # re-evaluated on the realigned channel and refitted (no basis)
     full_rate: bool = False     # True: compute on full-rate signals (time shifts), then decimate
 
     def applicable(self, sig: Signals) -> bool:
@@ -154,15 +157,9 @@ def shift_within_runs(x: np.ndarray, sig: Signals, lag_s: float) -> np.ndarray:
 
 
 def _f_latency(sig: Signals, ctx: FeatureContext, sh: Shape) -> np.ndarray:
-    lag = float(sh["lag_s"])
-    bl = ctx.baseline
-    if sh["channel"] == "tau_out":
-        pred = bl.predict(sig)
-        return (shift_within_runs(pred, sig, lag) - pred)[:, None]
-    # dq_out late: the friction part of the prediction should have used a later velocity
-    B = bl.basis(sig)
-    fric = B[:, 1:4] @ bl.theta[1:4]
-    return (shift_within_runs(fric, sig, -lag) - fric)[:, None]
+    """No basis of its own: the closure re-evaluates the whole baseline on the realigned
+    channel (:func:`models.closure_model.realigned_signals`) and refits it."""
+    return np.zeros((len(sig), 0))
 
 
 def _f_stiff(sig: Signals, ctx: FeatureContext, sh: Shape) -> np.ndarray:
@@ -208,7 +205,7 @@ CATALOGUE: tuple[EffectSpec, ...] = (
     EffectSpec("sensor_latency", ("latency",), "a measured channel arrives late relative to the others",
                "tau_out(t) measured as tau_out(t - lag), or dq_out late by lag", (),
                tuple({"channel": c, "lag_s": s * m / 1000.0} for c in ("tau_out", "dq_out")
-                     for m in _LAGS_MS for s in (1, -1)), _f_latency, loss_sign=1.0, fixed_gain=True,
+                     for m in _LAGS_MS for s in (1, -1)), _f_latency, loss_sign=1.0, realigns=True,
                full_rate=True),
     EffectSpec("nonlinear_stiffness", ("deflection",), "the cable stiffens with strain (hardening/softening)",
                "tau_in + tau_out = 2 (K_c x + K3 x^3 + K2 x|x|)", ("K3_Nm_rad3", "K2_Nm_rad2"), ({},),

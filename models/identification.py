@@ -11,7 +11,8 @@ law (21) with tau_fc the friction magnitude (eq 19, mu theta T0_eq r), zeta_s th
 stiction ratio, eta_s the Stribeck velocity, alpha the tanh steepness, b_vis the
 viscous term (which absorbs gamma of eq 20), g the transmission ratio r_out/r_in and c
 a torque-sensor offset. Free: g, tau_fc, zeta_s, b_vis, c (linear, solved exactly for
-given shape) and alpha, eta_s (nonlinear, variable projection).
+given shape) and alpha, eta_s (nonlinear, variable projection, :mod:`models.baseline_shape`),
+within the law's domain zeta_s >= 1 (the stiction excess tau_fc (zeta_s - 1) >= 0).
 ``wu`` (Wu-type analytical mapping with uniform pretension): Coulomb friction with a
 load-proportional part, tau_f = tanh(alpha dq)(tau_c + k_load |tau_in|) + b_vis dq.
 ``distributed`` is not fitted here (its states are not observable from these signals);
@@ -32,47 +33,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from models.baseline_shape import (ModelKind, ShapeProblem, fit_shape, friction_basis, linear_param_names,
+                                   named_params)
 from models.errors import ModelError
 from models.signals import Signals
 
-
-class ModelKind(IntEnum):
-    """Which transmission model ``identify`` fits."""
-
-    REDUCED = 0
-    WU = 1
-    DISTRIBUTED = 2
-
-    @staticmethod
-    def parse(name: str) -> "ModelKind":
-        """``"reduced" | "wu" | "distributed"`` -> ModelKind.
-
-        :raises ModelError: for an unknown name.
-        """
-        try:
-            return ModelKind[name.upper()]
-        except KeyError:
-            raise ModelError(f"unknown model {name!r}; one of reduced, wu, distributed") from None
-
-
-_LIN_NAMES = {ModelKind.REDUCED: ("ratio", "tau_fc_Nm", "stiction_excess_Nm", "b_vis_Nms_rad", "offset_Nm"),
-              ModelKind.WU: ("ratio", "tau_c_Nm", "k_load", "b_vis_Nms_rad", "offset_Nm")}
-
-
-def friction_basis(kind: ModelKind, v: np.ndarray, tau_in: np.ndarray, alpha_s_rad: float,
-                   eta_s_rad_s: float) -> np.ndarray:
-    """Design matrix of the baseline (columns match ``_LIN_NAMES[kind]``)."""
-    th = np.tanh(alpha_s_rad * v)
-    if kind == ModelKind.REDUCED:
-        second = -th * np.exp(-(v / eta_s_rad_s) ** 2)
-    else:
-        second = -th * np.abs(tau_in)
-    return np.column_stack([tau_in, -th, second, -v, np.ones_like(v)])
+__all__ = ["BaselineFit", "ModelKind", "fit_baseline", "fit_elastic", "fit_environment", "friction_basis",
+           "linear_param_names", "named_params", "sandwich_cov"]
 
 
 @dataclass
@@ -149,29 +119,15 @@ def fit_baseline(sig: Signals, kind: ModelKind = ModelKind.REDUCED) -> BaselineF
     if not v95 > 0:
         raise ModelError("the runs carry no motion (velocity is zero); nothing to identify")
 
-    def inner(la: float, le: float) -> tuple[np.ndarray, np.ndarray]:
-        B = friction_basis(kind, v, tin, math.exp(la), math.exp(le))
-        th = _solve(B, y)
-        return th, y - B @ th
-
-    best = (math.inf, 0.0, 0.0)
-    for a_rel in np.logspace(0.3, 3.0, 10):
-        for e_rel in (np.logspace(-2.0, 0.0, 6) if kind == ModelKind.REDUCED else [0.1]):
-            la, le = math.log(a_rel / v95), math.log(e_rel * v95)
-            sse = float(np.dot(*(2 * [inner(la, le)[1]])))
-            if sse < best[0]:
-                best = (sse, la, le)
-    x0 = np.array([best[1], best[2]])
-    if kind == ModelKind.REDUCED:
-        res = least_squares(lambda x: inner(x[0], x[1])[1], x0, method="trf", x_scale=1.0, max_nfev=60,
-                            bounds=([math.log(0.5 / v95), math.log(1e-3 * v95)], [math.log(5e4 / v95), math.log(5.0 * v95)]))
-    else:
-        res = least_squares(lambda x: inner(x[0], best[2])[1], x0[:1], method="trf", max_nfev=60,
-                            bounds=([math.log(0.5 / v95)], [math.log(5e4 / v95)]))
-        res.x = np.array([res.x[0], best[2]])
-    la, le = float(res.x[0]), float(res.x[1])
-    theta, r = inner(la, le)
-    alpha, eta = math.exp(la), math.exp(le)
+    prob = ShapeProblem(kind, tin, v, y)
+    shape = fit_shape(prob, v95, n_alpha=10, n_eta=6)
+    # a second pass from there as the closure refits the shape (same start and grid): the
+    # closure's refits then start where the baseline alone has its optimum, and a
+    # candidate cannot take credit for a better optimum of the baseline itself
+    shape = fit_shape(prob, v95, start=(shape.alpha_s_rad, shape.eta_s_rad_s))
+    theta, alpha, eta = shape.theta, shape.alpha_s_rad, shape.eta_s_rad_s
+    r = y - friction_basis(kind, v, tin, alpha, eta) @ theta
+    la, le = math.log(alpha), math.log(eta)
     # Jacobian of the prediction w.r.t. (theta, log alpha, log eta), for the covariance
     B = friction_basis(kind, v, tin, alpha, eta)
     cols = [B]
@@ -183,7 +139,7 @@ def fit_baseline(sig: Signals, kind: ModelKind = ModelKind.REDUCED) -> BaselineF
     J = np.hstack(cols)
     cov = sandwich_cov(J, r)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    names = _LIN_NAMES[kind]
+    names = linear_param_names(kind)
     fit = BaselineFit(kind, alpha, eta, theta, n_samples=len(sig),
                       rmse_Nm=float(np.sqrt(np.mean(r ** 2))), max_err_Nm=float(np.max(np.abs(r))))
     for i, nm in enumerate(names):

@@ -6,15 +6,37 @@ Training and held-out data are separate runs (different excitations and seeds; t
 held-out run continues the session clock). Each injected effect must be traced to the
 signal it depends on and cut the held-out RMSE by at least 30 %; clean runs must
 select nothing.
+
+Excitation: the slow, hold-heavy default (``MULTISINE_HOLDS``: 0.2-1.4 Hz, holds of
+0.1-4 s, ~45 % of the samples at rest), except for the two effects that only show while
+the joint moves fast, which get the experiment an experimenter would run for them, in
+training *and* held-out runs (``FAST_MULTISINE``: the same torque amplitudes at 3x the
+frequencies, short holds):
+
+* speed_viscous (drag c dq|dq| growing with speed): on the default runs (95 % of the
+  speeds below 0.55 rad/s) the baseline's linear viscous term absorbs most of the drag:
+  the baseline is 0.051 Nm held-out where a plant without the effect leaves 0.047 Nm, so
+  there is about 9 % to win, and the closure takes it (0.0466 Nm, c2 = 1.7 Nm s^2/rad^2).
+  The paper notes the same limit (distributed viscous damping not isolated "due to the
+  limited velocity range").
+* sensor_latency (IMU velocity 12 ms late): a time shift is invisible while the joint
+  rests. On the default runs the closure finds the 12 ms and reaches 0.0469 Nm, 29.98 %
+  below the baseline's 0.0670 Nm, where the same runs without the effect give 0.0470 Nm
+  (``test_latency_on_slow_runs_reaches_the_clean_floor``): 30 % there would need a
+  prediction better than that of the effect-free plant.
+
+The clean runs are checked on both excitations.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 import pytest
 
 from models.closure import ClosureResult, close
-from models.effect_plant import Injection, simulate_run
+from models.effect_plant import FAST_MULTISINE, MULTISINE_HOLDS, ExcitationDesign, Injection, PlantParams, simulate_run
 from models.effects import Target
 from models.signals import signals_from_tables
 
@@ -34,10 +56,15 @@ CATALOGUED = {
     "nonlinear_stiffness": (Target.ELASTIC, "deflection"),
 }
 
+#: effects that need the fast excitation (module docstring)
+DESIGN = {"speed_viscous": FAST_MULTISINE, "sensor_latency": FAST_MULTISINE}
 
-def run_closure(effect: str, seed: int = 1) -> ClosureResult:
-    train = simulate_run(Injection(effect), TRAIN_S, seed=seed)
-    test = simulate_run(Injection(effect), TEST_S, seed=seed + 100, t0_s=TRAIN_S)
+
+@lru_cache(maxsize=None)
+def run_closure(effect: str, seed: int = 1, design: ExcitationDesign | None = None) -> ClosureResult:
+    design = design or DESIGN.get(effect, MULTISINE_HOLDS)
+    train = simulate_run(Injection(effect), TRAIN_S, seed=seed, design=design)
+    test = simulate_run(Injection(effect), TEST_S, seed=seed + 100, t0_s=TRAIN_S, design=design)
     sig = signals_from_tables([train, test])
     return close(sig.take(sig.run_id == 0), sig.take(sig.run_id == 1))
 
@@ -47,17 +74,7 @@ def improvement(res: ClosureResult, target: Target) -> float:
     return 1.0 - r.rmse_after_Nm / r.rmse_before_Nm
 
 
-#: known shortfall: a 12 ms late IMU velocity is traced to 'latency' and selected, but the
-#: fixed-gain correction (baseline friction re-evaluated on the advanced velocity) cuts
-#: the held-out RMSE by 29 %, not 30 % (0.067 -> 0.047 Nm on a 0.028 Nm noise floor)
-#: speed_viscous: at the excitation's speeds the baseline's linear viscous term absorbs most
-#: of the quadratic drag; the residual (0.051 Nm on a 0.028 Nm floor) leaves < 30 % to win
-SHORT = {"sensor_latency": "fixed-gain latency correction reaches 29 % of the required 30 %",
-         "speed_viscous": "baseline's linear viscous term absorbs most of the injected drag: 9 % left to win"}
-
-
-@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.xfail(reason=SHORT[e], strict=True))
-                                    if e in SHORT else e for e in sorted(CATALOGUED)])
+@pytest.mark.parametrize("effect", sorted(CATALOGUED))
 def test_catalogued_effect_is_traced_and_cuts_heldout_error(effect: str) -> None:
     target, signal = CATALOGUED[effect]
     res = run_closure(effect)
@@ -84,11 +101,52 @@ def test_uncatalogued_effect_is_described_by_its_signal() -> None:
     assert res.trace[0]["signal"] == "position"
 
 
-@pytest.mark.parametrize("seed", [1, 7])
-def test_clean_runs_select_nothing(seed: int) -> None:
-    res = run_closure("none", seed=seed)
+@pytest.mark.parametrize("seed, design", [(1, MULTISINE_HOLDS), (7, MULTISINE_HOLDS), (1, FAST_MULTISINE)])
+def test_clean_runs_select_nothing(seed: int, design: ExcitationDesign) -> None:
+    res = run_closure("none", seed=seed, design=design)
     for target, r in res.targets.items():
         assert r.selected == [], (target, [(c.effect, c.improvement, c.ci_low) for c in r.selected])
         assert r.rmse_after_Nm == r.rmse_before_Nm
     # the baseline alone is already at the noise floor of the torque sensor (0.02 Nm)
     assert res.targets[Target.TAU_OUT].rmse_before_Nm < 3 * 0.02 * np.sqrt(2)
+
+
+def test_speed_viscous_recovers_the_injected_drag() -> None:
+    """The drag is attributed to the catalogued form with the plant's coefficients, and the
+    baseline refitted with it returns to the plant's own friction law (eq 21)."""
+    plant = PlantParams()
+    res = run_closure("speed_viscous")
+    r = res.targets[Target.TAU_OUT]
+    first = r.selected[0]
+    assert first.effect == "speed_viscous"
+    # injected: tau_e = c dq|dq| with c = 2.0 Nm s^2/rad^2, no cubic part
+    assert first.params["c2_Nms2_rad2"] == pytest.approx(2.0, rel=0.1)
+    assert abs(first.params["c3_Nms3_rad3"]) < 0.2
+    # the baseline fitted alone bent its viscous term to absorb the drag ...
+    assert res.baseline.params["b_vis_Nms_rad"] > 5 * (plant.b_vis_Nms_rad + plant.gamma_Nms_rad)
+    # ... refitted with the effect it is the plant's b_vis + gamma and tau_fc again
+    p = r.params_after
+    assert p["b_vis_Nms_rad"] == pytest.approx(plant.b_vis_Nms_rad + plant.gamma_Nms_rad, abs=0.05)
+    assert p["tau_fc_Nm"] == pytest.approx(plant.tau_fc_Nm, rel=0.05)
+
+
+def test_latency_finds_the_injected_lag() -> None:
+    res = run_closure("sensor_latency")
+    first = res.targets[Target.TAU_OUT].selected[0]
+    assert first.effect == "sensor_latency"
+    assert first.shape["channel"] == "dq_out"
+    assert first.shape["lag_s"] == pytest.approx(0.012, abs=1e-6)    # 12 samples at 1 kHz
+
+
+def test_latency_on_slow_runs_reaches_the_clean_floor() -> None:
+    """On the slow, hold-heavy runs the latency is still found and corrected: the
+    prediction reaches that of the same runs without the effect (the same excitation,
+    plant trajectory and noise, only the velocity channel not delayed)."""
+    res = run_closure("sensor_latency", seed=1, design=MULTISINE_HOLDS)
+    clean = run_closure("none", seed=1, design=MULTISINE_HOLDS)
+    r = res.targets[Target.TAU_OUT]
+    assert [c.effect for c in r.selected] == ["sensor_latency"]
+    assert r.selected[0].shape == {"channel": "dq_out", "lag_s": pytest.approx(0.012, abs=1e-6)}
+    floor = clean.targets[Target.TAU_OUT].rmse_before_Nm
+    assert r.rmse_before_Nm > 1.3 * floor
+    assert r.rmse_after_Nm < 1.005 * floor
