@@ -38,6 +38,13 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         eta_s_rad_s: 0.05            # Stribeck velocity
         alpha_s_rad: 50.0            # tanh steepness [s/rad]
         b_vis_Nms_rad: 0.0           # viscous term
+        effects: []                  # learned effects added to the friction torque: the fragment
+                                     # of `capstan close` (format models/effects_runtime.py,
+                                     # evaluation controller/learned_effects.py)
+        effects_shape: {alpha_s_rad: 50.0, eta_s_rad_s: 0.05, zeta_s: 1.2, v_rest_rad_s: 0.005}
+                                     # s(dq) of the baseline the effects were fitted on and the
+                                     # rest threshold of their dwell signal; absent keys: the
+                                     # feedforward's own shape, v_rest 0.005 rad/s
       safety:
         tau_max_Nm: 15.0             # command clamp (saturation, not a fault)
         dtau_max_Nm_s: 2000.0        # command rate clamp
@@ -59,6 +66,7 @@ from dataclasses import asdict, dataclass, field
 from enum import IntEnum
 from typing import Any, Mapping
 
+from controller.learned_effects import check_entries
 from models.config_tools import get_bool, get_choice, get_float, reject_unknown, section
 from models.errors import ConfigError
 
@@ -112,6 +120,8 @@ class FeedforwardConfig:
 
     :ivar routing_profile: ``((s_m, kappa_1_per_m), ...)`` knots of the routing.
     :ivar routing_length_m: routing length [m].
+    :ivar effects: learned effect entries (``capstan close`` fragment), validated.
+    :ivar effects_shape: ``(alpha_s_rad, eta_s_rad_s, zeta_s, v_rest_rad_s)`` of the effects.
     """
 
     enabled: bool = True
@@ -127,6 +137,8 @@ class FeedforwardConfig:
     eta_s_rad_s: float = 0.05
     alpha_s_rad: float = 50.0
     b_vis_Nms_rad: float = 0.0
+    effects: tuple[dict[str, Any], ...] = ()
+    effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
 
     def routing(self) -> Any:
         """The :class:`models.routing.Routing` of this feedforward."""
@@ -244,9 +256,15 @@ class ControllerConfig:
                 "pretension": ff.pretension.name.lower(), "T0_fixed_N": ff.T0_fixed_N,
                 "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
                 "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
+                "effects": [dict(e) for e in ff.effects],
+                "effects_shape": dict(zip(_EFFECTS_SHAPE_KEYS, ff.effects_shape)),
             },
             "safety": asdict(self.safety),
         }
+
+
+#: keys of ``controller.feedforward.effects_shape``, in the order of ``FeedforwardConfig.effects_shape``
+_EFFECTS_SHAPE_KEYS = ("alpha_s_rad", "eta_s_rad_s", "zeta_s", "v_rest_rad_s")
 
 
 def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig:
@@ -257,7 +275,8 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
     from models.routing import Routing
 
     reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
-                       "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad"}, p)
+                       "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
+                       "effects", "effects_shape"}, p)
     d = FeedforwardConfig()
     if "routing" in c:
         routing = Routing.from_mapping(section(c, "routing", p), f"{p}.routing")
@@ -270,6 +289,16 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
     zeta_s = get_float(c, "zeta_s", p, d.zeta_s, min_value=0.0)
     if zeta_s < zeta_c:
         raise ConfigError(f"{p}.zeta_s", f"must be >= zeta_c = {zeta_c}, got {zeta_s}")
+    eta_s = get_float(c, "eta_s_rad_s", p, d.eta_s_rad_s, min_value=0.0, min_exclusive=True)
+    alpha_s = get_float(c, "alpha_s_rad", p, d.alpha_s_rad, min_value=0.0, min_exclusive=True)
+    effects = check_entries(c.get("effects", []), f"{p}.effects")
+    es = section(c, "effects_shape", p, required=False)
+    ep = f"{p}.effects_shape"
+    reject_unknown(es, set(_EFFECTS_SHAPE_KEYS), ep)
+    shape = (get_float(es, "alpha_s_rad", ep, alpha_s, min_value=0.0, min_exclusive=True),
+             get_float(es, "eta_s_rad_s", ep, eta_s, min_value=0.0, min_exclusive=True),
+             get_float(es, "zeta_s", ep, zeta_s),          # a fitted shape may dip below 0
+             get_float(es, "v_rest_rad_s", ep, d.effects_shape[3], min_value=0.0, min_exclusive=True))
     return FeedforwardConfig(
         enabled=get_bool(c, "enabled", p, d.enabled),
         placement=Placement[get_choice(c, "placement", ("reference", "motor"), p, "reference").upper()],
@@ -279,9 +308,9 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         pretension=PretensionSource[get_choice(c, "pretension", ("measured", "fixed"), p, "measured").upper()],
         T0_fixed_N=get_float(c, "T0_fixed_N", p, d.T0_fixed_N, min_value=0.0),
         zeta_s=zeta_s, zeta_c=zeta_c,
-        eta_s_rad_s=get_float(c, "eta_s_rad_s", p, d.eta_s_rad_s, min_value=0.0, min_exclusive=True),
-        alpha_s_rad=get_float(c, "alpha_s_rad", p, d.alpha_s_rad, min_value=0.0, min_exclusive=True),
+        eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
         b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),
+        effects=effects, effects_shape=shape,
     )
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from controller.config import ControllerConfig, Placement, PretensionSource, TorqueLoop
 from controller.feedforward import friction_torque_per_N
+from controller.learned_effects import pack_block
 from controller.ldo import derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients, \
     qpinv_filter_coefficients
 from controller.records import FaultBits, new_record
@@ -27,9 +28,12 @@ from controller import step as _s
 
 
 def pack_config(cfg: ControllerConfig) -> np.ndarray:
-    """The flat float64 config array of :mod:`controller.step` (all coefficients).
+    """The flat float64 config array of :mod:`controller.step` (all coefficients), with
+    the learned effects of the feedforward packed after ``N_CFG``
+    (:func:`controller.learned_effects.pack_block`).
 
     :raises ModelError: if the friction magnitude cannot be computed from the routing.
+    :raises ConfigError: if a learned effect entry is malformed.
     """
     c = np.zeros(_s.N_CFG)
     dt = cfg.dt_s
@@ -71,7 +75,7 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_IMU_TIMEOUT] = sf.imu_timeout_s
     c[_s.C_LC_TIMEOUT] = sf.loadcell_timeout_s
     c[_s.C_MOTOR_TIMEOUT] = sf.motor_timeout_s
-    return c
+    return np.concatenate((c, pack_block(ff.effects, *ff.effects_shape)))
 
 
 class Controller:

@@ -12,7 +12,8 @@ Control law (per cycle, ``k``)::
     tau_in   = F[ r_in (T_up_in - T_lo_in) ]             F: 1st-order low-pass (load-cell noise)
     T0       = mean of the four tensions                 pretension estimate (§4.4.1)
     tau_g    = m_g_l sin(q_out)                          models.link.gravity_hold_torque_Nm
-    tau_fc   = gain * eq21(dq_out; c_fc T0)              only when imu_new, held otherwise
+    tau_fc   = gain * (eq21(dq_out; c_fc T0) + tau_e)    only when imu_new, held otherwise;
+                                                         tau_e: learned effects (controller.learned_effects)
     tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
     e        = tau_in_des - tau_in
     C e      = kp e - D tau_in     derivative on the measurement only: the reference jumps
@@ -46,6 +47,7 @@ import numpy as np
 from numba import njit
 
 from controller.feedforward import friction_feedforward_Nm
+from controller.learned_effects import N_FX_STATE, learned_effects_Nm
 from controller.ldo import biquad_init, biquad_step, lowpass_step
 from controller.safety import input_fault_bits, limit_command_Nm, output_fault_bits
 from models.link import gravity_hold_torque_Nm
@@ -83,7 +85,7 @@ C_DTAU_FAULT_STEP = 36  # dtau_fault * dt
 C_IMU_TIMEOUT = 37
 C_LC_TIMEOUT = 38
 C_MOTOR_TIMEOUT = 39
-N_CFG = 40
+N_CFG = 40              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -98,7 +100,8 @@ S_CMD_PREV = 10         # command applied in the previous cycle [Nm]
 S_RAW_PREV = 11         # previous raw demand [Nm]
 S_FC_HELD = 12          # friction feedforward held between IMU samples [Nm]
 S_FAULT = 13            # latched fault bits (as float64, exact)
-N_STATE = 14
+S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
+N_STATE = S_FX + N_FX_STATE
 
 
 @njit(cache=True)
@@ -127,9 +130,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], r.q_out_rad) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        st[S_FC_HELD] = cfg[C_FF_GAIN] * friction_feedforward_Nm(
-            r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S],
-            cfg[C_ALPHA_S], cfg[C_B_VIS])
+        fc = friction_feedforward_Nm(r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C],
+                                     cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
+        if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
+            load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
+            fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
+        st[S_FC_HELD] = cfg[C_FF_GAIN] * fc
     tau_fc = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
     ff_motor = cfg[C_FF_MOTOR] != 0.0
     tau_out_des = tau_g + r.tau_out_ref_Nm

@@ -12,7 +12,7 @@ Fragment (written by ``capstan close``, loaded by the controller's feedforward):
             params: {amp_Nm: 1.2, tau_age_s: 1.0, s0_rad: 0.03}
             p: [1.2, 1.0, 0.03, 0, 0, 0, 0, 0]        # packed params, layout per code (below)
             # empirical effects also carry knots / even / odd (same length)
-        effects_shape: {alpha_s_rad: 30.0, eta_s_rad_s: 0.05, zeta_s: 1.3}
+        effects_shape: {alpha_s_rad: 30.0, eta_s_rad_s: 0.05, zeta_s: 1.3, v_rest_rad_s: 0.01}
     identification:                         # the baseline the effects were fitted on
       model: reduced
       params: {...}

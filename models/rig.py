@@ -10,6 +10,9 @@ Sensors modelled (what the daemon and the offline tools see):
 * the motor encoder (quantized to ``encoder_counts_per_rev``) and velocity;
 * for the testbed, input/output torque sensors with Gaussian noise.
 
+Optionally the plant carries physical effects the controller's model lacks
+(``effects``, :mod:`models.rig_effects`), applied between steps.
+
 The rig advances in fixed control steps (``step``); it never sleeps, so the HIL
 process paces it in real time and tests run it in lock-step as fast as it computes.
 """
@@ -25,6 +28,7 @@ import numpy as np
 from models.config_tools import get_float, get_int, reject_unknown, section
 from models.distributed import DistributedModel, InputMode
 from models.plant_config import PlantSpec, plant_from_mapping
+from models.rig_effects import RigEffects
 
 
 @dataclass(frozen=True)
@@ -77,13 +81,15 @@ class SimulatedRig:
     :param noise: sensor noise levels.
     :param seed: seed of the noise generator (runs are reproducible).
     :param imu_rate_hz: IMU output rate [Hz].
+    :param effects: physical effects injected into the plant (none by default).
     """
 
     def __init__(self, spec: PlantSpec, noise: SensorNoise | None = None, seed: int = 0,
-                 imu_rate_hz: float = 400.0) -> None:
+                 imu_rate_hz: float = 400.0, effects: RigEffects | None = None) -> None:
         self.spec = spec
         self.noise = noise if noise is not None else SensorNoise()
         self.imu_rate_hz = float(imu_rate_hz)
+        self.effects = effects if effects is not None else RigEffects(())
         self.model = DistributedModel(spec.transmission, spec.boundary)
         self._seed = seed
         self.reset()
@@ -91,20 +97,24 @@ class SimulatedRig:
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], prefix: str = "plant") -> "SimulatedRig":
         """Build from a ``plant`` section: the keys of :mod:`models.plant_config` plus
-        ``noise`` (see :class:`SensorNoise`), ``seed`` and ``imu_rate_hz``.
+        ``noise`` (see :class:`SensorNoise`), ``seed``, ``imu_rate_hz`` and ``effects``
+        (see :mod:`models.rig_effects`).
 
         :raises ConfigError: naming the offending key.
         """
-        allowed = {"transmission", "routing", "pretension", "output", "input", "noise", "seed", "imu_rate_hz"}
+        own = ("noise", "seed", "imu_rate_hz", "effects")
+        allowed = {"transmission", "routing", "pretension", "output", "input", *own}
         reject_unknown(cfg, allowed, prefix)
-        spec = plant_from_mapping({k: v for k, v in cfg.items() if k not in ("noise", "seed", "imu_rate_hz")}, prefix)
+        spec = plant_from_mapping({k: v for k, v in cfg.items() if k not in own}, prefix)
         noise = SensorNoise.from_mapping(section(cfg, "noise", prefix, required=False), f"{prefix}.noise")
         return SimulatedRig(spec, noise, get_int(cfg, "seed", prefix, 0),
-                            get_float(cfg, "imu_rate_hz", prefix, 400.0, min_value=1.0, max_value=2000.0))
+                            get_float(cfg, "imu_rate_hz", prefix, 400.0, min_value=1.0, max_value=2000.0),
+                            RigEffects.from_list(cfg.get("effects"), f"{prefix}.effects"))
 
     def reset(self) -> None:
         """Back to the initial pretension state at t = 0 and re-seed the noise."""
         self.model.reset()
+        self.effects.reset()
         self._rng = np.random.default_rng(self._seed)
         # the sample at t = 0 is the initial state; the next one is due at 1 / imu_rate_hz
         self._imu_index = 0
@@ -125,7 +135,11 @@ class SimulatedRig:
         :raises IntegrationError: if the integrator fails.
         """
         self._tau_cmd_Nm = float(tau_m_Nm)
+        if self.effects:
+            self.effects.before_step(self.model)
         self.model.step(dt_s, float(tau_m_Nm), float(tau_ext_Nm))
+        if self.effects:
+            self.effects.after_step(self.model, dt_s)
 
     # ---- sensors -------------------------------------------------------------------
     def load_cells_N(self) -> np.ndarray:

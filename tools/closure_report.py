@@ -95,12 +95,18 @@ def fragment(res: ClosureResult, model: str, refs: dict[str, float], q_ref_rad: 
             entry["code"] = int(code)
             entry["p"] = [float(x) for x in p]
             effects.append(entry)
-    b = res.baseline.params
+    # the effects' coefficients were fitted together with a refitted baseline: the shape they
+    # are evaluated with, and the baseline recorded beside them, are that refit's
+    tau_out = res.targets.get(Target.TAU_OUT)
+    b = tau_out.params_after if tau_out is not None and tau_out.selected and tau_out.params_after \
+        else res.baseline.params
     return {"controller": {"feedforward": {
                 "effects": effects,
                 "effects_shape": {"alpha_s_rad": b.get("alpha_s_rad", 1.0), "eta_s_rad_s": b.get("eta_s_rad_s", 1.0),
-                                  "zeta_s": b.get("zeta_s", 1.0)}}},
-            "identification": {"model": model, "params": b, "stderr": res.baseline.stderr}}
+                                  "zeta_s": b.get("zeta_s", 1.0),
+                                  "v_rest_rad_s": float(res.train.v_rest_rad_s)}}},
+            "identification": {"model": model, "params": b, "stderr": res.baseline.stderr,
+                               "baseline_alone": res.baseline.params}}
 
 
 def write_fragment(frag: dict[str, Any], path: Path) -> Path:

@@ -5,7 +5,9 @@ time, simulated drive on a fresh ``capstan_unix`` bus, IMU and load cells on pty
 pairs), points the config's ``auto`` channel/ports at it and runs the daemon unchanged
 for ``S`` seconds of control, then ramps down and prints a summary — with ``--json``
 one object: cycles, missed, period jitter p50/p99/p99.9/max [µs], faults, dropped log
-records, log path (plus the plant's and the processes' CPU figures).
+records, log path (plus the plant's and the processes' CPU figures; under ``plant``
+the simulated rig's statistics, with ``hand`` the interaction torque of ``hil.hand`` and
+``effects`` the effects injected into the plant).
 
 Exit codes as ``capstan run`` (0 ok, 2 start-up error, 3 control fault); 4 if the
 simulated rig failed (e.g. cable slack).

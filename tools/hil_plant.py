@@ -10,11 +10,16 @@ Started by ``capstan hil`` (``python -m tools.hil_plant --config hil.yaml --chan
   plant's motor state goes back in its TPDOs; it watches the daemon's heartbeat;
 * the IMU (:class:`drivers.sim_serial.SimXsens`) and the load-cell amplifier
   (:class:`drivers.sim_serial.SimLoadCellAmp`) write real wire bytes into pty pairs;
-* an external torque ``hil.tau_ext`` (a sine: a hand moving the link) acts on the output.
+* an external torque ``hil.tau_ext`` (an open-loop sine) acts on the output, and/or a
+  hand ``hil.hand`` (:mod:`tools.hil_hand`: an arm impedance moving the link with rests,
+  holding the handle while the drive is enabled) whose interaction torque is measured;
+* the plant may carry effects the controller's model lacks (``hil.plant.effects``,
+  :mod:`models.rig_effects`).
 
 Protocol with the parent on stdout: one JSON line once ready
 ``{"channel", "imu_port", "load_cells_port", "pid"}``; one JSON line of statistics at the
-end. It stops on SIGTERM, when its parent dies, or on a plant error (cable slack,
+end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects).
+It stops on SIGTERM, when its parent dies, or on a plant error (cable slack,
 integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
 """
 
@@ -37,8 +42,10 @@ import numpy as np
 from controller import realtime
 from controller.realtime import RealtimeMode, RealtimeSettings
 from controller.timing import DeadlineSleeper, process_cpu_s
+from drivers.cia402 import State402
 from models.config_tools import get_choice, get_float, get_int, load_yaml, reject_unknown, section
 from models.errors import CapstanError, ConfigError, ModelError
+from tools.hil_hand import Hand, HandSettings
 
 log = logging.getLogger("capstan.hil_plant")
 
@@ -55,6 +62,7 @@ class HilSettings:
     :ivar tau_ext_frequency_hz: its frequency [Hz].
     :ivar rated_torque_Nm: the simulated drive's rated torque (0x6076) [Nm].
     :ivar realtime: scheduling of the plant process.
+    :ivar hand: the hand moving the link (None: no hand).
     """
 
     period_s: float = 1e-3
@@ -64,11 +72,12 @@ class HilSettings:
     rated_torque_Nm: float = 20.0
     realtime: RealtimeSettings = RealtimeSettings(mode=RealtimeMode.WARN, priority=70, lock_memory=False,
                                                   helper_priority=69)
+    hand: HandSettings | None = None
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], prefix: str = "hil") -> "HilSettings":
         """:raises ConfigError: naming the offending key."""
-        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime"}, prefix)
+        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand"}, prefix)
         d = HilSettings()
         te = section(cfg, "tau_ext", prefix, required=False)
         reject_unknown(te, {"amplitude_Nm", "frequency_hz"}, f"{prefix}.tau_ext")
@@ -91,6 +100,7 @@ class HilSettings:
             RealtimeSettings(RealtimeMode.parse(get_choice(rt, "mode", ("off", "warn", "enforce"), rp, "warn")),
                              prio, tuple(cpus), lock_memory=False, gil_switch_interval_s=0.0,
                              helper_priority=prio - 1),
+            HandSettings.from_mapping(section(cfg, "hand", prefix), f"{prefix}.hand") if "hand" in cfg else None,
         )
 
 
@@ -126,6 +136,8 @@ class HilPlant:
         self.drive = SimDrive(self.bus, mcfg.node_id, mcfg.eds, self.settings.rated_torque_Nm,
                               mcfg.encoder_counts_per_rev, mcfg.velocity_units_per_rev_s)
         self._gear = mcfg.gear_ratio
+        self.hand = Hand(self.settings.hand) if self.settings.hand is not None else None
+        self._hand_t0_s: float | None = None
         self.steps = 0
         self.lost_s = 0.0
         self.step_us = np.zeros(1 << 16)
@@ -141,13 +153,27 @@ class HilPlant:
         s = self.settings
         return s.tau_ext_amplitude_Nm * math.sin(2 * math.pi * s.tau_ext_frequency_hz * t_s)
 
+    def hand_torque_Nm(self, t_s: float, dt_s: float) -> float:
+        """Interaction torque of the hand over the next ``dt_s`` (0 without a hand or while
+        the drive is not enabled) [Nm]; recorded in the hand's statistics."""
+        if self.hand is None or self.drive.state != State402.OPERATION_ENABLED:
+            return 0.0
+        if self._hand_t0_s is None:
+            self._hand_t0_s = t_s
+        m = self.rig.model
+        th = t_s - self._hand_t0_s
+        tau_h = self.hand.torque_Nm(th, m.q_out_rad, m.dq_out_rad_s)
+        self.hand.record(th, tau_h, dt_s)
+        return tau_h
+
     def cycle(self, dt_s: float, now_s: float) -> None:
         """One plant period: drive command -> plant -> feedback, sensors out.
 
         :raises ModelError: if the plant leaves its range (cable slack) or fails.
         """
         tau_m = self.drive.torque_command_Nm
-        self.rig.step(tau_m, self.tau_ext_Nm(self.rig.t_s), dt_s)
+        t = self.rig.t_s
+        self.rig.step(tau_m, self.tau_ext_Nm(t) + self.hand_torque_Nm(t, dt_s), dt_s)
         q, dq, tau = self.rig.motor_feedback()
         self.drive.set_feedback(q * self._gear, dq * self._gear, tau)
         self.drive.service(now_s)
@@ -195,7 +221,9 @@ class HilPlant:
                 "step_p99_us": float(np.percentile(st, 99)) if n else math.nan,
                 "step_max_us": float(st.max()) if n else math.nan,
                 "cpu_s": process_cpu_s() - cpu0,
-                "drive_faults": [hex(c) for c in self.drive.faults_raised]}
+                "drive_faults": [hex(c) for c in self.drive.faults_raised],
+                "hand": self.hand.stats() if self.hand is not None else None,
+                "effects": self.rig.effects.describe()}
 
     def close(self) -> None:
         """Release the bus and the ptys."""

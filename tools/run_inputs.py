@@ -9,8 +9,10 @@ file of another layout through an import description, or a daemon MCAP log.
 * anything else -> needs an import description (``--import DESC.yaml``)
 
 The output torque of a daemon log: when the log has no ``tau_out`` (the link use case
-has no output torque sensor) but a ``tau_out_Nm`` / ``tau_load_Nm`` style field is
-present, it is used; otherwise the run cannot be closed and a DataFormatError says so.
+has no output torque sensor), it is the cable torque on the output pulley from the
+output-side load cells, ``r_out (T_up_out - T_lo_out)``; failing those, a
+``tau_out_Nm`` / ``tau_load_Nm`` style field is used; otherwise the run cannot be closed
+and a DataFormatError says so.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ def _from_mcap(path: Path) -> MeasurementTable:
     data = read_log(path)
     table = records_to_table(data.records, data.config, str(path))
     cols = {k: v for k, v in table.columns.items() if k in STANDARD_COLUMNS or "temp" in k.lower()}
+    if "tau_out" not in cols and {"T_up_out_N", "T_lo_out_N"} <= set(table.columns):
+        cols["tau_out"] = float(table.meta["r_out"]) * (table.columns["T_up_out_N"] - table.columns["T_lo_out_N"])
     if "tau_out" not in cols:
         for f in _TAU_OUT_FIELDS:
             if f in table.columns:
