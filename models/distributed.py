@@ -272,6 +272,28 @@ def _step_kernel(y, t0, t1, u, text, n, d0, theta_r, mu_scale_r, b_node_r, mu, r
     return st
 
 
+def input_series(t_s: np.ndarray, u_Nm: np.ndarray,
+                 tau_ext_Nm: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated contiguous float arrays (time [s], input torque [Nm], external torque [Nm],
+    zero if ``None``) for a simulation run.
+
+    :raises ConfigError: unless t_s is strictly increasing with >= 2 samples and both torque
+        series have its shape and are finite.
+    """
+    t = np.ascontiguousarray(t_s, dtype=float)
+    u = np.ascontiguousarray(u_Nm, dtype=float)
+    if t.ndim != 1 or t.shape[0] < 2 or not np.all(np.diff(t) > 0):
+        raise ConfigError("t_s", "must be a strictly increasing 1-D array of >= 2 samples")
+    if u.shape != t.shape:
+        raise ConfigError("u_Nm", f"must have the shape of t_s {t.shape}, got {u.shape}")
+    te = np.zeros_like(t) if tau_ext_Nm is None else np.ascontiguousarray(tau_ext_Nm, dtype=float)
+    if te.shape != t.shape:
+        raise ConfigError("tau_ext_Nm", f"must have the shape of t_s {t.shape}, got {te.shape}")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(te))):
+        raise ConfigError("u_Nm/tau_ext_Nm", "must be finite")
+    return t, u, te
+
+
 class DistributedModel:
     """The distributed transmission + pulley boundary dynamics, stepped or run offline.
 
@@ -490,17 +512,7 @@ class DistributedModel:
         :raises ConfigError: on malformed inputs.
         :raises OperatingRangeError: on cable slack. :raises IntegrationError: on failure.
         """
-        t = np.ascontiguousarray(t_s, dtype=float)
-        u = np.ascontiguousarray(u_Nm, dtype=float)
-        if t.ndim != 1 or t.shape[0] < 2 or not np.all(np.diff(t) > 0):
-            raise ConfigError("t_s", "must be a strictly increasing 1-D array of >= 2 samples")
-        if u.shape != t.shape:
-            raise ConfigError("u_Nm", f"must have the shape of t_s {t.shape}, got {u.shape}")
-        te = np.zeros_like(t) if tau_ext_Nm is None else np.ascontiguousarray(tau_ext_Nm, dtype=float)
-        if te.shape != t.shape:
-            raise ConfigError("tau_ext_Nm", f"must have the shape of t_s {t.shape}, got {te.shape}")
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(te))):
-            raise ConfigError("u_Nm/tau_ext_Nm", "must be finite")
+        t, u, te = input_series(t_s, u_Nm, tau_ext_Nm)
         self._check_node_params()
         _node_coefficients(self._theta_r, self.mu_scale, self.b_node_Ns_m, self.trans.mu,
                            self._route, self._c_node, self._b_ring)

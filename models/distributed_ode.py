@@ -17,8 +17,7 @@ import scipy.sparse as sp
 
 from models import distributed_integrator as di
 from models import distributed_rhs as rhs
-from models.distributed import DistributedModel, _node_coefficients
-from models.errors import ConfigError
+from models.distributed import DistributedModel, _node_coefficients, input_series
 
 
 @dataclass
@@ -129,15 +128,7 @@ def ode_problem(model: DistributedModel, t_s: np.ndarray, u_Nm: np.ndarray,
     :param sparse_jac: return the Jacobian as scipy sparse CSC (better for large N).
     :raises ConfigError: on malformed inputs or invalid node parameters.
     """
-    t = np.ascontiguousarray(t_s, dtype=float)
-    u = np.ascontiguousarray(u_Nm, dtype=float)
-    if t.ndim != 1 or t.shape[0] < 2 or not np.all(np.diff(t) > 0):
-        raise ConfigError("t_s", "must be a strictly increasing 1-D array of >= 2 samples")
-    if u.shape != t.shape:
-        raise ConfigError("u_Nm", f"must have the shape of t_s {t.shape}, got {u.shape}")
-    te = np.zeros_like(t) if tau_ext_Nm is None else np.ascontiguousarray(tau_ext_Nm, dtype=float)
-    if te.shape != t.shape:
-        raise ConfigError("tau_ext_Nm", f"must have the shape of t_s {t.shape}, got {te.shape}")
+    t, u, te = input_series(t_s, u_Nm, tau_ext_Nm)
     model._check_node_params()
     _node_coefficients(model._theta_r, model.mu_scale, model.b_node_Ns_m, model.trans.mu,
                        model._route, model._c_node, model._b_ring)
