@@ -37,6 +37,7 @@ from controller.mcap_log import DEFAULT_FLUSH_INTERVAL_S, McapLog
 from controller.records import (LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS,
                                 loop_command)
 from drivers.xsens import twist_angle_rad, wrap_pi
+from tools.log_floor import WireScales, floor_table
 
 #: limits raised so the open-loop synthetic run never saturates or faults: the command
 #: stays a noisy float (the worst case for compression)
@@ -244,6 +245,9 @@ def main() -> int:
                    help="store every float field as float64 (not the daemon's LOG_FLOAT32_FIELDS)")
     p.add_argument("--levels", default="", help="comma-separated zstd levels for an offline size/CPU table")
     p.add_argument("--out-dir", help="keep the logs here (default: a temporary directory)")
+    p.add_argument("--floor", action="store_true",
+                   help="only print per-field compressed costs under columnar and fixed-point layouts "
+                        "(tools/log_floor.py) and exit")
     args = p.parse_args()
     n = int(args.seconds * args.rate_hz)
     f32 = () if args.all_float64 else LOG_FLOAT32_FIELDS
@@ -253,6 +257,14 @@ def main() -> int:
     recs = realistic_records(n)
     print(f"generated {n} realistic records ({RECORD_DTYPE.itemsize} B each raw, "
           f"{len(RECORD_DTYPE.names)} fields) in {time.perf_counter() - t0:.1f} s")
+    if args.floor:
+        scales = WireScales(LC_SCALE_N_PER_MV_V, RAD_PER_COUNT, RAD_S_PER_UNIT, RATED_TORQUE_NM)
+        print(f"per-field bytes per record, columnar zstd {args.zstd_level}, {chunk_records}-record chunks "
+              "(as logged now -> fixed point):")
+        for label, b in floor_table(recs, f32, scales, chunk_records, args.zstd_level):
+            extra = f" = {b * args.rate_hz * 3600 / 1e6:.0f} MB/hour" if label.startswith("TOTAL") else ""
+            print(f"{label}{extra}")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out_dir) if args.out_dir else Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
