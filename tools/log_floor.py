@@ -94,6 +94,33 @@ def fixed_point_columns(records: np.ndarray, float32_fields: tuple[str, ...],
     return cols
 
 
+#: resolution of a log quantised at the source (the driver / the step rounds to it, so
+#: replay stays exact): far below each signal's noise on the rig
+SOURCE_QUANTUM: dict[str, float] = {
+    "t_s": 1e-6, "lc_t_s": 1e-6, "imu_t_s": 1e-6, "motor_t_s": 1e-6, "period_s": 1e-6, "compute_s": 1e-6,
+    "T_up_in_N": 1e-3, "T_up_out_N": 1e-3, "T_lo_out_N": 1e-3, "T_lo_in_N": 1e-3,
+    "q_out_rad": 1e-6, "dq_out_rad_s": 1e-5, "tau_out_ref_Nm": 1e-4, "cmd_scale": 1e-4,
+    **{n: 1e-4 for n in STEP_STATE_FIELDS}, "tau_m_cmd_Nm": 1e-4,
+}
+
+
+def source_quantised_columns(records: np.ndarray, fixed: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Fixed-point columns with the fields of :data:`SOURCE_QUANTUM` as integer multiples
+    of their quantum (receive times relative to ``t_s``; lossy against the records: it is
+    what a source-quantised daemon would log, not a re-encoding of this log)."""
+    cols = dict(fixed)
+    t_q = np.round(records["t_s"] / SOURCE_QUANTUM["t_s"]).astype(np.int64)
+    for name, q in SOURCE_QUANTUM.items():
+        v = np.round(records[name] / q).astype(np.int64)
+        if name == "t_s":
+            cols[name] = t_q
+        elif name in TIME_FIELDS:
+            cols[name] = (v - t_q).astype(np.int32)
+        else:
+            cols[name] = v.astype(np.int32)
+    return cols
+
+
 def column_costs(columns: dict[str, np.ndarray], chunk_rows: int, level: int) -> dict[str, float]:
     """Bytes per row of each column compressed on its own, chunk by chunk."""
     cz = zstandard.ZstdCompressor(level=level)
@@ -114,7 +141,9 @@ def floor_table(records: np.ndarray, float32_fields: tuple[str, ...], scales: Wi
     as_logged = {n: np.ascontiguousarray(records[n].astype(np.float32) if n in float32_fields else records[n])
                  for n in records.dtype.names}
     now = column_costs(as_logged, chunk_rows, level)
-    fixed = column_costs(fixed_point_columns(records, float32_fields, scales), chunk_rows, level)
+    fixed_cols = fixed_point_columns(records, float32_fields, scales)
+    fixed = column_costs(fixed_cols, chunk_rows, level)
+    quant = column_costs(source_quantised_columns(records, fixed_cols), chunk_rows, level)
     rows = [(f"  {n:16s} {str(as_logged[n].dtype):8s}", now[n], fixed[n]) for n in records.dtype.names]
     framing = INDEX_ENTRY_BYTES / batch + 1.0
     inputs_cmd = [n for n in records.dtype.names if n not in STEP_STATE_FIELDS]
@@ -123,10 +152,18 @@ def floor_table(records: np.ndarray, float32_fields: tuple[str, ...], scales: Wi
         ("columnar, fixed point, all fields", sum(fixed.values()) + framing),
         ("columnar, fixed point, without the step state (recomputed on replay)",
          sum(fixed[n] for n in inputs_cmd) + framing),
+        ("columnar, quantised at the source (1 us, 1 mN, 1 urad, 0.1 mNm), all fields",
+         sum(quant.values()) + framing),
+        ("columnar, quantised at the source, without the step state",
+         sum(quant[n] for n in inputs_cmd) + framing),
     ]
+    per_cycle = INDEX_ENTRY_BYTES + 4.0
     out: list[tuple[str, float]] = []
     for label, a, b in rows:
         out.append((f"{label} {a:6.2f} -> {b:6.2f}", b))
     out += [(f"TOTAL {label}: {v:.1f} B/record (incl. {framing:.2f} B framing at {batch} cycles/message)", v)
             for label, v in totals]
+    q_all = sum(quant.values()) + per_cycle
+    out.append((f"TOTAL per-cycle messages (as now: Foxglove-indexed), quantised at the source, all fields: "
+                f"{q_all:.1f} B/record (incl. ~{per_cycle:.0f} B header and index entry)", q_all))
     return out
