@@ -83,7 +83,10 @@ def _damp_out(bp) -> float:
     return bp[BP_B_OUT]
 
 
-@njit(cache=True)
+# _solve and _wrms (the divisions of every Newton iteration) use Numba's numpy error model:
+# no zero-divisor check per division; a zero pivot or weight gives inf/NaN, which the
+# Newton iteration treats as divergence (step size reduced, then ERR_NEWTON).
+@njit(cache=True, error_model="numpy")
 def _solve(n, hg, R, work, bp, D):
     """Solve ``(M - hg J) D = -R`` (cyclic tridiagonal + eliminated velocities).
 
@@ -153,7 +156,7 @@ def _solve(n, hg, R, work, bp, D):
         D[m + 1] = (D[n + 1] + R[n + 1]) / hg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wrms(v, y, atolv, rtol, n_eff) -> float:
     s = 0.0
     for i in range(v.shape[0]):
@@ -387,8 +390,14 @@ def observe(y, u, n, d0, bp, f_seg, out):
 
     ``dq`` of first-order pulleys is computed from their balance at input ``u``.
     """
-    m = 2 * n + 2
     segment_forces(y, n, d0, bp, f_seg)
+    observe_forces(y, u, n, bp, f_seg, out)
+
+
+@njit(cache=True)
+def observe_forces(y, u, n, bp, f_seg, out):
+    """:func:`observe` with the segment tensions ``f_seg`` of ``y`` already computed."""
+    m = 2 * n + 2
     tau_in = bp[BP_R_IN] * (f_seg[0] - f_seg[m - 1])
     tau_out = bp[BP_R_OUT] * (f_seg[n] - f_seg[n + 1])
     out[0] = y[0]

@@ -21,6 +21,10 @@ def test_bench_smoke_run_reports_accuracy_rates_and_radau(capsys) -> None:
     radau = re.search(r"Radau rtol \S+ \(matched\)\s+([\d.]+) sim-s/wall-s .*ours adaptive\s+(\d+)x", summary)
     assert radau is not None, summary
     assert float(radau.group(1)) > 0.0 and int(radau.group(2)) > 1
+    fastest = re.search(r"Radau ratio of our fastest mode within 0.01 Nm on \S+ s "
+                        r"\((adaptive rtol \S+|fixed 1 step)\):\s+(\d+)x faster", summary)
+    assert fastest is not None, summary
+    assert int(fastest.group(2)) >= int(radau.group(2))
     check = re.search(r"max\|dtau_out\| ([\d.e+-]+) Nm \(tau_out range ([\d.]+) Nm", summary)
     assert check is not None, summary
     assert float(check.group(1)) < 1e-5 and float(check.group(2)) > 0.5
