@@ -90,7 +90,6 @@ class DistributedModel:
         self._checked_arrays: tuple[object, object] = (None, None)
         self._b_ring[:] = 1.0
         self._cubic = 0.0
-        self._fb[kern.F_MU] = trans.mu
         bp = self._bp
         bp[rhs.BP_IN_MODE] = float(int(bnd.input_mode))
         bp[rhs.BP_B_IN] = bnd.b_in_Nms_rad

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from models.distributed_rhs import (BP_B_IN, BP_B_LINK, BP_B_M, BP_B_OUT, BP_CC,
@@ -413,7 +412,3 @@ def observe_forces(y, u, n, bp, f_seg, out):
     out[4] = tau_in
     out[5] = tau_out
 
-
-def new_work(n: int) -> np.ndarray:
-    """Allocate the integrator work array for ``n`` internal nodes per cable."""
-    return np.zeros((N_WORK, 2 * n + 4))

@@ -10,9 +10,9 @@ model's arrays (``_y``, ``_d0``, ``mu_scale``, ``_work``, ...) are numpy views i
 so in-place changes are seen by the kernel without copying.
 
 Float buffer ``fb``: scalar slots ``F_*`` (model time [s], last input torque [Nm],
-friction coefficient, Newton/error tolerances, adaptive flag), then the arrays at the
-offsets ``ib[O_*]``. Int buffer ``ib``: ``ib[I_N]`` = N, the array offsets, then the
-routing map (``ib[I_ROUTE:]``, ring entry -> node index, -1 at the pulleys).
+Newton/error tolerances, adaptive flag; the friction coefficient is read from
+``bp[BP_MU]``), then the arrays at the offsets ``ib[O_*]``. Int buffer ``ib``:
+``ib[I_N]`` = N, the array offsets, then the routing map (``ib[I_ROUTE:]``, ring entry -> node index, -1 at the pulleys).
 
 Numerics are those of :mod:`models.distributed_integrator`; the kernels only unpack the
 buffers and call it, so results are bit-identical to calling it with separate arrays.
@@ -32,7 +32,7 @@ from models import distributed_rhs as rhs
 ERR_DT = 5          # dt_s not > 0 (status of the step kernels, beside the di.ERR_* codes)
 
 # scalar slots of fb
-F_T, F_U, F_MU, F_RTOL, F_ATOL, F_ADAPT = range(6)
+F_T, F_U, F_RTOL, F_ATOL, F_ADAPT = range(5)
 N_SCALARS = 8
 # slots of ib: N, then the offsets of the arrays in fb, then the routing map
 I_N = 0
@@ -119,7 +119,7 @@ def _held_step(fb, ib, dt, u, text, mu_scale_r, b_node_r) -> int:
     bp = _arr(fb, ib, O_BP, rhs.BP_SIZE)
     stats = _arr(fb, ib, O_STATS, di.N_STATS)
     work = _arr(fb, ib, O_WORK, di.N_WORK * (m + 2)).reshape((di.N_WORK, m + 2))
-    st = node_coefficients(_arr(fb, ib, O_THETA, 2 * n), mu_scale_r, b_node_r, fb[F_MU],
+    st = node_coefficients(_arr(fb, ib, O_THETA, 2 * n), mu_scale_r, b_node_r, bp[rhs.BP_MU],
                            ib[I_ROUTE: I_ROUTE + m], c_node, b_ring)
     if st != di.OK:
         return st
