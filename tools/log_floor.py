@@ -81,10 +81,12 @@ def fixed_point_columns(records: np.ndarray, float32_fields: tuple[str, ...],
         elif name == "dq_out_rad_s":
             c = v.astype(np.float32)
             back = c.astype(np.float64)
+        elif name in float32_fields:
+            # already logged as float32: the record value to reproduce is the float32 one
+            c = v.astype(np.float32)
+            back = v = c.astype(np.float64)
         else:
-            c = v.astype(np.float32) if name in float32_fields else v
-            back = c.astype(v.dtype) if name in float32_fields else c
-            v = back
+            c = back = v
         timelike = name in TIME_FIELDS or name == "t_s"
         ok = (np.max(np.abs(back - v), initial=0.0) <= 1e-9 if timelike
               else np.allclose(back, v, rtol=1e-7, atol=1e-12))
