@@ -136,22 +136,31 @@ def node_law(f_a: float, f_b: float, c_n: float, p: float) -> tuple:
     return g, phi_F + phi_N * c_n, -phi_F + phi_N * c_n
 
 
-@njit(cache=True)
-def segment_tension(d: float, k: float, cc: float) -> tuple:
-    """Tension [N] and tangent stiffness [N/m] of a segment with elongation ``d`` [m]."""
-    if cc == 0.0:
-        return k * d, k
-    return k * d * (1.0 + cc * d * d), k * (1.0 + 3.0 * cc * d * d)
-
-
-@njit(cache=True)
-def disp_scale(j: int, n: int, r_in: float, r_out: float) -> float:
-    """Factor from ring state ``j`` to its cable displacement (r for pulleys, 1 for nodes)."""
+@njit(cache=True, inline="always")
+def elongation(y, j: int, n: int, d0, r_in: float, r_out: float) -> float:
+    """Elongation [m] of ring segment ``j`` (joining ring entries ``j`` and ``j+1 mod m``)."""
+    m = 2 * n + 2
     if j == 0:
-        return r_in
+        return d0[0] + r_in * y[0] - y[1]
+    if j == n:
+        return d0[j] + y[j] - r_out * y[j + 1]
     if j == n + 1:
-        return r_out
-    return 1.0
+        return d0[j] + r_out * y[j] - y[j + 1]
+    if j == m - 1:
+        return d0[j] + y[j] - r_in * y[0]
+    return d0[j] + y[j] - y[j + 1]
+
+
+@njit(cache=True)
+def segment_forces(y, n, d0, bp, f_seg):
+    """Segment tensions [N] of state ``y`` into ``f_seg`` (m,)."""
+    r_in = bp[BP_R_IN]
+    r_out = bp[BP_R_OUT]
+    k = bp[BP_K_SEG]
+    cc = bp[BP_CC]
+    for j in range(2 * n + 2):
+        d = elongation(y, j, n, d0, r_in, r_out)
+        f_seg[j] = k * d if cc == 0.0 else k * d * (1.0 + cc * d * d)
 
 
 @njit(cache=True)
@@ -180,16 +189,7 @@ def eval_system(y, u_Nm, text_Nm, n, d0, c_node, b_node, bp,
     cc = bp[BP_CC]
     p = bp[BP_P]
     for j in range(m):
-        if j == 0:
-            d = d0[0] + r_in * y[0] - y[1]
-        elif j == n:
-            d = d0[j] + y[j] - r_out * y[j + 1]
-        elif j == n + 1:
-            d = d0[j] + r_out * y[j] - y[j + 1]
-        elif j == m - 1:
-            d = d0[j] + y[j] - r_in * y[0]
-        else:
-            d = d0[j] + y[j] - y[j + 1]
+        d = elongation(y, j, n, d0, r_in, r_out)
         if cc == 0.0:
             f_seg[j] = k * d
             kt_seg[j] = k
