@@ -3,9 +3,8 @@
 Method: Alexander's two-stage, second-order, L-stable, stiffly accurate SDIRK
 (gamma = 1 - 1/sqrt(2)) on ``M dy/dt = F(y)`` (``M`` diagonal), with full Newton
 iterations on an analytic Jacobian. The Newton matrix ``M - h*gamma*J`` is a cyclic
-tridiagonal on the ring ``q_in - upper chain - q_out - lower chain`` once the pulley
-velocity states are eliminated, so each linear solve is O(N) (Thomas algorithm on the
-chain with ``q_in`` as the border unknown, one Schur-complement scalar).
+tridiagonal once the pulley velocity states are eliminated, so each linear solve is O(N)
+(:mod:`models.distributed_linsolve`).
 
 Error estimate (adaptive mode): ``e = y_{n+1} - y_hat`` with the embedded first-order
 solution ``y_hat = y_n + h K_1``, i.e. ``e = h gamma (K_2 - K_1)``, filtered through
@@ -16,8 +15,7 @@ Newton: stops when the contraction-corrected increment (Hairer & Wanner IV.8) is
 :func:`newton_tol` in that weighted norm: ``max(10 eps / rtol, min(0.03, sqrt(rtol)))``,
 the rule of scipy's Radau (1e-3 at the default rtol 1e-6, 1e-2 at rtol 1e-4: a small
 fraction of the local error tolerance, which is 1 in this norm). The error filter reuses
-the factors of the last Newton solve (:func:`_sweep`). Small helpers that take arrays are
-inlined: a call that passes arrays costs Numba reference counting on every call.
+the factors of the last Newton solve (:func:`models.distributed_linsolve.sweep`).
 Predictor: a step of the same size as the last one starts from the last step's stage
 increments (this carries the response to the input jump of a held input, which a
 derivative extrapolation cannot); other steps extrapolate with the last stage derivative.
@@ -36,185 +34,23 @@ import math
 
 from numba import njit
 
-from models.distributed_rhs import (BP_B_IN, BP_B_LINK, BP_B_M, BP_B_OUT, BP_CC,
-                                    BP_IN_MODE, BP_J_M, BP_J_OUT, BP_K_OUT, BP_K_SEG,
-                                    BP_OUT_MODE, BP_R_IN, BP_R_OUT, OUT_LINK,
-                                    OUT_TESTBED_MASSLESS, eval_system, mass_diag,
-                                    min_tension, segment_forces)
+from models.distributed_linsolve import second_order_in, second_order_out, solve, sweep, wrms
+from models.distributed_rhs import (BP_B_IN, BP_B_OUT, BP_IN_MODE, BP_K_OUT, BP_OUT_MODE,
+                                    BP_R_IN, BP_R_OUT, OUT_TESTBED_MASSLESS, eval_system,
+                                    mass_diag, min_tension, segment_forces)
+# the buffer layout, re-exported: callers use ``di.W_*``, ``di.S_*``, ``di.ERR_*``
+from models.distributed_work import (ERR_NEWTON, ERR_NONFINITE, ERR_PARAM, ERR_SLACK,  # noqa: F401
+                                     I_SEG, I_T, I_TENSION, N_STATS, N_WORK, OK, S_ETA, S_H,
+                                     S_NEWTON_FAIL, S_REJECT, S_RHS, S_STEPS, W_ATOL, W_CP,
+                                     W_DEL, W_E, W_F, W_FS, W_HP, W_INV, W_JDI, W_JLO, W_JUP,
+                                     W_K1, W_KP, W_KT, W_M, W_P1, W_P2, W_PSI, W_R, W_WW, W_Y0,
+                                     W_YI, W_Z1, W_Z2, W_ZZ)
 
 GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
-
-OK = 0
-ERR_SLACK = 1
-ERR_NEWTON = 2
-ERR_NONFINITE = 3
-ERR_PARAM = 4       # a per-node parameter out of range (checked by the model's step kernel)
-
-# rows of the work array
-(W_Y0, W_Z1, W_Z2, W_PSI, W_K1, W_F, W_M, W_ATOL, W_DEL, W_R, W_E, W_CP, W_ZZ, W_WW,
- W_FS, W_KT, W_JLO, W_JDI, W_JUP, W_KP, W_P1, W_P2, W_HP, W_YI, W_INV) = range(25)
-N_WORK = 25
-# W_KP: last stage derivative; W_P1, W_P2: stage increments Z1 - Y0 and Z2 - Z1 of the last
-# accepted step; W_HP[0]: that step's size [s] (0 = none). Zeroed by the model's reset.
-# W_YI: interpolated state (dense output). W_CP, W_INV, W_WW: factors of M - hg J left by
-# _solve for _sweep.
-
-# stats slots
-S_STEPS, S_RHS, S_REJECT, S_NEWTON_FAIL, S_H, S_ETA = range(6)
-N_STATS = 6
-# info slots for errors: time, segment index, tension
-I_T, I_SEG, I_TENSION = range(3)
 
 NEWTON_MAXIT = 12
 _EPS = 2.220446049250313e-16
 H_MIN_S = 1e-12
-
-
-@njit(cache=True, inline="always")
-def _second_order_in(bp) -> bool:
-    return bp[BP_IN_MODE] != 0.0
-
-
-@njit(cache=True, inline="always")
-def _second_order_out(bp) -> bool:
-    return int(bp[BP_OUT_MODE]) != OUT_TESTBED_MASSLESS
-
-
-@njit(cache=True, inline="always")
-def _damp_out(bp) -> float:
-    if int(bp[BP_OUT_MODE]) == OUT_LINK:
-        return bp[BP_B_LINK]
-    return bp[BP_B_OUT]
-
-
-# _solve, _sweep and _wrms (the divisions of every Newton iteration) use Numba's numpy
-# error model: no zero-divisor check per division; a zero pivot or weight gives inf/NaN,
-# which the Newton iteration treats as divergence (step size reduced, then ERR_NEWTON).
-@njit(cache=True, error_model="numpy")
-def _solve(n, hg, R, work, bp, D):
-    """Solve ``(M - hg J) D = -R`` (cyclic tridiagonal + eliminated velocities).
-
-    Thomas algorithm on the chain rows ``1..m-1`` with two right-hand sides (``-R`` and
-    the border column of ``q_in``), then one Schur-complement scalar for ``q_in``; the
-    matrix entries are formed on the fly from the ring Jacobian. The factors (reciprocal
-    pivots in W_INV with the Schur pivot in ``work[W_INV, 0]``, multipliers in W_CP, border
-    solution in W_WW) stay in ``work`` for :func:`_sweep`. Elimination and first right-hand
-    side run in one pass: the pivot recursion is latency-bound and the right-hand side
-    rides along in its shadow.
-    """
-    m = 2 * n + 2
-    jo = n + 1
-    M = work[W_M]
-    jl = work[W_JLO]
-    jd = work[W_JDI]
-    ju = work[W_JUP]
-    cp = work[W_CP]
-    inv_p = work[W_INV]
-    z = work[W_ZZ]
-    w = work[W_WW]
-    di0 = M[0] - hg * jd[0]
-    r0 = -R[0]
-    if _second_order_in(bp):
-        A = (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
-        di0 = A - hg * jd[0]
-        r0 = -R[m] - A * R[0]
-    dio = M[jo] - hg * jd[jo]
-    ro = -R[jo]
-    if _second_order_out(bp):
-        A = (bp[BP_J_OUT] + hg * _damp_out(bp)) / hg
-        dio = A - hg * jd[jo]
-        ro = -R[m + 1] - A * R[jo]
-    # forward sweep; border column entries: row 1 (lower neighbour q_in), row m-1 (upper)
-    zp = 0.0
-    wp = 0.0
-    cpp = 0.0
-    for j in range(1, m):
-        lo = -hg * jl[j]
-        if j == jo:
-            d = dio
-            r = ro
-        else:
-            d = M[j] - hg * jd[j]
-            r = -R[j]
-        inv = 1.0 / (d - lo * cpp)
-        zp = (r - lo * zp) * inv
-        if j == 1:
-            wp = lo * inv
-        elif j == m - 1:
-            wp = (-hg * ju[j] - lo * wp) * inv
-        else:
-            wp = -lo * wp * inv
-        cpp = -hg * ju[j] * inv if j < m - 1 else 0.0
-        inv_p[j] = inv
-        z[j] = zp
-        w[j] = wp
-        cp[j] = cpp
-    for j in range(m - 2, 0, -1):
-        z[j] -= cp[j] * z[j + 1]
-        w[j] -= cp[j] * w[j + 1]
-    up0 = -hg * ju[0]
-    lo0 = -hg * jl[0]
-    den = di0 - up0 * w[1] - lo0 * w[m - 1]
-    inv_p[0] = den
-    x0 = (r0 - up0 * z[1] - lo0 * z[m - 1]) / den
-    _finish(n, hg, R, bp, z, w, x0, D)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _finish(n, hg, R, bp, z, w, x0, D):
-    """Back-substitute the border unknown ``x0`` and recover eliminated velocities."""
-    m = 2 * n + 2
-    D[0] = x0
-    for j in range(1, m):
-        D[j] = z[j] - w[j] * x0
-    D[m] = 0.0
-    D[m + 1] = 0.0
-    if _second_order_in(bp):
-        D[m] = (D[0] + R[0]) / hg
-    if _second_order_out(bp):
-        D[m + 1] = (D[n + 1] + R[n + 1]) / hg
-
-
-@njit(cache=True, error_model="numpy")
-def _sweep(n, hg, R, work, bp, D):
-    """Solve ``(M - hg J) D = -R`` with the factors left in ``work`` by the last
-    :func:`_solve` (same ``hg`` and Jacobian); same operations on the right-hand side."""
-    m = 2 * n + 2
-    jo = n + 1
-    jl = work[W_JLO]
-    ju = work[W_JUP]
-    cp = work[W_CP]
-    inv_p = work[W_INV]
-    z = work[W_ZZ]
-    w = work[W_WW]
-    r0 = -R[0]
-    if _second_order_in(bp):
-        r0 = -R[m] - (bp[BP_J_M] + hg * bp[BP_B_M]) / hg * R[0]
-    ro = -R[jo]
-    if _second_order_out(bp):
-        ro = -R[m + 1] - (bp[BP_J_OUT] + hg * _damp_out(bp)) / hg * R[jo]
-    zp = 0.0
-    for j in range(1, m):
-        lo = -hg * jl[j]
-        r = ro if j == jo else -R[j]
-        zp = (r - lo * zp) * inv_p[j]
-        z[j] = zp
-    for j in range(m - 2, 0, -1):
-        z[j] -= cp[j] * z[j + 1]
-    up0 = -hg * ju[0]
-    lo0 = -hg * jl[0]
-    x0 = (r0 - up0 * z[1] - lo0 * z[m - 1]) / inv_p[0]
-    _finish(n, hg, R, bp, z, w, x0, D)
-
-
-@njit(cache=True, error_model="numpy")
-def _wrms(v, y, atolv, rtol, n_eff) -> float:
-    s = 0.0
-    for i in range(v.shape[0]):
-        wi = atolv[i] + rtol * abs(y[i])
-        r = v[i] / wi
-        s += r * r
-    return math.sqrt(s / n_eff)
 
 
 @njit(cache=True)
@@ -237,7 +73,7 @@ def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -
     j_lo = work[W_JLO]
     j_di = work[W_JDI]
     j_up = work[W_JUP]
-    n_eff = float(m + (1 if _second_order_in(bp) else 0) + (1 if _second_order_out(bp) else 0))
+    n_eff = float(m + (1 if second_order_in(bp) else 0) + (1 if second_order_out(bp) else 0))
     # convergence test of Hairer & Wanner (IV.8): stop when eta * |dZ| <= tol with the
     # contraction estimate eta = theta / (1 - theta), carried over between solves
     eta = max(stats[S_ETA], 1e-16) ** 0.8 if stats[S_ETA] > 0.0 else 1.0
@@ -248,10 +84,10 @@ def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -
         stats[S_RHS] += 1.0
         for i in range(m + 2):
             R[i] = M[i] * (Z[i] - psi[i]) - hg * F[i]
-        _solve(n, hg, R, work, bp, D)
+        solve(n, hg, R, work, bp, D)
         for i in range(m + 2):
             Z[i] += D[i]
-        nrm = _wrms(D, Z, atolv, rtol, n_eff)
+        nrm = wrms(D, Z, atolv, rtol, n_eff)
         if not math.isfinite(nrm):
             return False
         if it > 0:
@@ -320,9 +156,9 @@ def try_step(n, y, h, u1, e1, u2, e2, d0, c_node, b_node, bp, work, rtol, adapti
     R = work[W_R]
     for i in range(m + 2):
         R[i] = -M[i] * E[i]
-    _sweep(n, hg, R, work, bp, D)
-    n_eff = float(m + (1 if _second_order_in(bp) else 0) + (1 if _second_order_out(bp) else 0))
-    return _wrms(D, Z2, work[W_ATOL], rtol, n_eff)
+    sweep(n, hg, R, work, bp, D)
+    n_eff = float(m + (1 if second_order_in(bp) else 0) + (1 if second_order_out(bp) else 0))
+    return wrms(D, Z2, work[W_ATOL], rtol, n_eff)
 
 
 @njit(cache=True)

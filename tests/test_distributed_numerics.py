@@ -10,6 +10,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from models import distributed_integrator as di
+from models import distributed_linsolve as ls
 from models import distributed_rhs as rhs
 from models.distributed import (BoundaryParams, DistributedModel, InputMode, OutputMode,
                                 TransmissionParams, _node_coefficients)
@@ -151,13 +152,13 @@ def test_newton_solve_and_factor_reuse_match_a_dense_solve(in_mode, out_mode, j_
     R1 = rng.normal(0, 1e-3, m + 2)
     R2 = rng.normal(0, 1e-3, m + 2)
     D1 = np.zeros(m + 2)
-    di._solve(n, hg, R1, work, bp, D1)
+    ls.solve(n, hg, R1, work, bp, D1)
     ref1 = np.linalg.solve(A, -R1[live])
     assert np.allclose(D1[live], ref1, rtol=1e-5, atol=1e-6 * np.abs(ref1).max())
     D2 = np.zeros(m + 2)
-    di._sweep(n, hg, R2, work, bp, D2)
+    ls.sweep(n, hg, R2, work, bp, D2)
     D2_fresh = np.zeros(m + 2)
-    di._solve(n, hg, R2, work, bp, D2_fresh)
+    ls.solve(n, hg, R2, work, bp, D2_fresh)
     assert np.allclose(D2, D2_fresh, rtol=1e-13, atol=0.0)
     ref2 = np.linalg.solve(A, -R2[live])
     assert np.allclose(D2[live], ref2, rtol=1e-5, atol=1e-6 * np.abs(ref2).max())
