@@ -33,6 +33,18 @@ def second_order_out(bp) -> bool:
 
 
 @njit(cache=True, inline="always")
+def _in_coef(hg: float, bp) -> float:
+    """``(J_m + hg b_m) / hg``: the input velocity row eliminated into the q_in row."""
+    return (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
+
+
+@njit(cache=True, inline="always")
+def _out_coef(hg: float, bp) -> float:
+    """``(J_out + hg b_out) / hg``: the output velocity row eliminated into the q_out row."""
+    return (bp[BP_J_OUT] + hg * damp_out(bp)) / hg
+
+
+@njit(cache=True, inline="always")
 def damp_out(bp) -> float:
     """Viscous damping on the output pulley [Nm s/rad] (link or testbed)."""
     if int(bp[BP_OUT_MODE]) == OUT_LINK:
@@ -68,13 +80,13 @@ def solve(n, hg, R, work, bp, D):
     di0 = M[0] - hg * jd[0]
     r0 = -R[0]
     if second_order_in(bp):
-        A = (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
+        A = _in_coef(hg, bp)
         di0 = A - hg * jd[0]
         r0 = -R[m] - A * R[0]
     dio = M[jo] - hg * jd[jo]
     ro = -R[jo]
     if second_order_out(bp):
-        A = (bp[BP_J_OUT] + hg * damp_out(bp)) / hg
+        A = _out_coef(hg, bp)
         dio = A - hg * jd[jo]
         ro = -R[m + 1] - A * R[jo]
     # forward sweep; border column entries: row 1 (lower neighbour q_in), row m-1 (upper)
@@ -142,10 +154,10 @@ def sweep(n, hg, R, work, bp, D):
     w = work[W_WW]
     r0 = -R[0]
     if second_order_in(bp):
-        r0 = -R[m] - (bp[BP_J_M] + hg * bp[BP_B_M]) / hg * R[0]
+        r0 = -R[m] - _in_coef(hg, bp) * R[0]
     ro = -R[jo]
     if second_order_out(bp):
-        ro = -R[m + 1] - (bp[BP_J_OUT] + hg * damp_out(bp)) / hg * R[jo]
+        ro = -R[m + 1] - _out_coef(hg, bp) * R[jo]
     zp = 0.0
     for j in range(1, m):
         lo = -hg * jl[j]

@@ -63,22 +63,31 @@ def _model_arrays(model: DistributedModel):
     return model._d0, model._c_node, model._b_ring, model._bp
 
 
+def _model_and_state(n: int, in_mode: InputMode, out_mode: OutputMode, j_out: float,
+                     seed: int) -> tuple[DistributedModel, np.ndarray, np.random.Generator]:
+    """A model in the given modes and a random state near the pretensioned one (small node
+    displacements, pulley angles and velocities), with the generator for further draws."""
+    trans = TransmissionParams.uniform(n, 3.0, 150.0)
+    model = DistributedModel(trans, BoundaryParams(input_mode=in_mode, output_mode=out_mode,
+                                                   out_inertia_kg_m2=j_out, link=LinkParams()))
+    m = 2 * n + 2
+    rng = np.random.default_rng(seed)
+    y = np.zeros(m + 2)
+    y[:m] = rng.normal(0, 2e-5, m)
+    y[0], y[n + 1] = 0.01, 0.008
+    y[m:] = (0.3, -0.2)
+    return model, y, rng
+
+
 @pytest.mark.parametrize("in_mode, out_mode, j_out", [
     (InputMode.TORQUE, OutputMode.TESTBED, 0.0), (InputMode.MOTOR, OutputMode.TESTBED, 0.05),
     (InputMode.MOTOR, OutputMode.LINK, 0.0)])
 def test_rhs_matches_plain_numpy_and_jacobian_matches_differences(in_mode, out_mode, j_out) -> None:
     n = 4
-    trans = TransmissionParams.uniform(n, 3.0, 150.0)
-    model = DistributedModel(trans, BoundaryParams(input_mode=in_mode, output_mode=out_mode,
-                                                   out_inertia_kg_m2=j_out, link=LinkParams()))
+    model, y, _ = _model_and_state(n, in_mode, out_mode, j_out, seed=1)
     model.stiffness_cubic_1_m2 = 3e4
     d0, c_node, b_ring, bp = _model_arrays(model)
     m = 2 * n + 2
-    rng = np.random.default_rng(1)
-    y = np.zeros(m + 2)
-    y[:m] = rng.normal(0, 2e-5, m)
-    y[0], y[n + 1] = 0.01, 0.008
-    y[m:] = (0.3, -0.2)
     M = np.zeros(m + 2)
     rhs.mass_diag(n, b_ring, bp, M)
     F = np.zeros(m + 2)
@@ -115,16 +124,9 @@ def test_newton_solve_and_factor_reuse_match_a_dense_solve(in_mode, out_mode, j_
     central differences of F; the sweep that reuses its factors (error filter) equals a
     fresh solve for another right-hand side."""
     n = 5
-    trans = TransmissionParams.uniform(n, 3.0, 150.0)
-    model = DistributedModel(trans, BoundaryParams(input_mode=in_mode, output_mode=out_mode,
-                                                   out_inertia_kg_m2=j_out, link=LinkParams()))
+    model, y, rng = _model_and_state(n, in_mode, out_mode, j_out, seed=3)
     d0, c_node, b_ring, bp = _model_arrays(model)
     m = 2 * n + 2
-    rng = np.random.default_rng(3)
-    y = np.zeros(m + 2)
-    y[:m] = rng.normal(0, 2e-5, m)
-    y[0], y[n + 1] = 0.01, 0.008
-    y[m:] = (0.3, -0.2)
     work = np.zeros((di.N_WORK, m + 2))
     di.setup(n, b_ring, bp, 1e-9, work)
     M = work[di.W_M]
