@@ -174,6 +174,8 @@ def sweep(n, hg, R, work, bp, D):
 
 @njit(cache=True, error_model="numpy")
 def wrms(v, y, atolv, rtol, n_eff) -> float:
+    """Weighted RMS norm ``sqrt(sum (v_i / (atol_i + rtol |y_i|))^2 / n_eff)``; ``n_eff``
+    counts the live components (unused velocity slots hold 0)."""
     s = 0.0
     for i in range(v.shape[0]):
         wi = atolv[i] + rtol * abs(y[i])
