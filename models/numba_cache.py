@@ -14,9 +14,9 @@ fingerprint hashes every ``.py`` file of the ``controller``, ``drivers``, ``mode
 cache, and an unchanged tree reuses its own. ``BASE`` is ``$NUMBA_CACHE_DIR`` when set
 (the systemd unit and CI set it), else ``$XDG_CACHE_HOME/capstan/numba`` (default
 ``~/.cache/capstan/numba``). The newest few fingerprint directories are kept, older ones
-removed. Each package's ``__init__`` calls :func:`configure_cache` before any of its
-compiled modules is imported; Numba fixes a function's cache path when the function is
-decorated.
+removed once unused for a day. Each package's ``__init__`` calls :func:`configure_cache`
+before any of its compiled modules is imported; Numba fixes a function's cache path when
+the function is decorated.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import hashlib
 import logging
 import os
 import shutil
+import time
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -37,6 +38,8 @@ PACKAGES = ("controller", "drivers", "models", "tools")
 PREFIX = "src-"
 #: fingerprint directories kept besides the current one (other checkouts, older versions)
 KEEP_OTHERS = 3
+#: a directory used this recently is never removed (another process may be compiling into it)
+MIN_AGE_S = 86400.0
 
 _configured: Path | None = None
 
@@ -73,7 +76,9 @@ def default_base() -> Path:
 
 
 def _prune(base: Path, current: Path) -> None:
-    """Remove fingerprint directories beyond the ``KEEP_OTHERS`` most recently used."""
+    """Remove fingerprint directories beyond the ``KEEP_OTHERS`` most recently used that
+    have not been used for ``MIN_AGE_S``."""
+    now = time.time()
     others = []
     for d in base.glob(PREFIX + "*"):
         if d.is_dir() and d != current:
@@ -82,8 +87,9 @@ def _prune(base: Path, current: Path) -> None:
             except OSError:
                 continue
     others.sort(reverse=True)
-    for _, d in others[KEEP_OTHERS:]:
-        shutil.rmtree(d, ignore_errors=True)
+    for mtime, d in others[KEEP_OTHERS:]:
+        if now - mtime >= MIN_AGE_S:
+            shutil.rmtree(d, ignore_errors=True)
 
 
 def configure_cache(roots: Iterable[Path] | None = None, base: Path | None = None) -> Path | None:

@@ -74,10 +74,13 @@ def test_fingerprint_follows_content_and_old_directories_are_pruned(tmp_path: Pa
     fp2 = numba_cache.source_fingerprint([root])
     assert fp2 != fp1
     base = tmp_path / "cache"
-    for i in range(numba_cache.KEEP_OTHERS + 2):
+    for i in range(numba_cache.KEEP_OTHERS + 2):       # unused for decades
         d = base / f"{numba_cache.PREFIX}old{i}"
         d.mkdir(parents=True)
         os.utime(d, (1000.0 + i, 1000.0 + i))
+    busy = [base / f"{numba_cache.PREFIX}busy{i}" for i in range(numba_cache.KEEP_OTHERS + 1)]
+    for d in busy:                                       # used today: one more than KEEP_OTHERS
+        d.mkdir()
     saved = numba_cache._configured
     try:
         path = numba_cache.configure_cache(roots=[root], base=base)
@@ -86,6 +89,6 @@ def test_fingerprint_follows_content_and_old_directories_are_pruned(tmp_path: Pa
         numba_cache.numba_config.CACHE_DIR = str(saved) if saved else ""
     assert path == base / (numba_cache.PREFIX + fp2)
     left = sorted(p.name for p in base.iterdir())
-    # the current directory and the KEEP_OTHERS most recent others
-    assert left == sorted([path.name] + [f"{numba_cache.PREFIX}old{i}" for i in
-                                         range(2, numba_cache.KEEP_OTHERS + 2)])
+    # the current directory and every directory used within a day stay; beyond the
+    # KEEP_OTHERS most recent, the long-unused ones go
+    assert left == sorted([path.name] + [d.name for d in busy])
