@@ -33,7 +33,7 @@ ERR_DT = 5          # dt_s not > 0 (status of the step kernels, beside the di.ER
 
 # scalar slots of fb
 F_T, F_U, F_RTOL, F_ATOL, F_ADAPT = range(5)
-N_SCALARS = 8
+N_SCALARS = 8       # 5 used; the first array starts on the 64-byte boundary
 # slots of ib: N, then the offsets of the arrays in fb, then the routing map
 I_N = 0
 (O_Y, O_D0, O_THETA, O_MU_SCALE, O_B_NODE, O_C_NODE, O_B_RING, O_BP, O_STATS, O_INFO,
@@ -105,9 +105,10 @@ def _arr(fb, ib, slot, length):
 
 
 @njit(cache=True)
-def _held_step(fb, ib, dt, u, text, mu_scale_r, b_node_r) -> int:
+def step_held_with(fb, ib, dt, u, text, mu_scale_r, b_node_r) -> int:
     """One held-input interval of ``dt`` [s] (input torque ``u``, external torque ``text``
-    [Nm]) from the state in ``fb``; on success time, input and observations are updated."""
+    [Nm]) from the state in ``fb``, with the per-node friction multipliers ``mu_scale_r`` and
+    dampings ``b_node_r`` (2N,) given; on success time, input and observations are updated."""
     if not dt > 0.0:
         return ERR_DT
     n = ib[I_N]
@@ -147,16 +148,11 @@ def _held_step(fb, ib, dt, u, text, mu_scale_r, b_node_r) -> int:
 
 @njit(cache=True)
 def step_held(fb, ib, dt, u, text) -> int:
-    """:func:`_held_step` with the model's own ``mu_scale`` / ``b_node_Ns_m`` (views of ``fb``)."""
+    """:func:`step_held_with` with the model's own ``mu_scale`` / ``b_node_Ns_m`` (views of
+    ``fb``)."""
     n = ib[I_N]
-    return _held_step(fb, ib, dt, u, text, _arr(fb, ib, O_MU_SCALE, 2 * n),
-                      _arr(fb, ib, O_B_NODE, 2 * n))
-
-
-@njit(cache=True)
-def step_held_with(fb, ib, dt, u, text, mu_scale_r, b_node_r) -> int:
-    """:func:`_held_step` with replacement ``mu_scale`` / ``b_node_Ns_m`` arrays (2N,)."""
-    return _held_step(fb, ib, dt, u, text, mu_scale_r, b_node_r)
+    return step_held_with(fb, ib, dt, u, text, _arr(fb, ib, O_MU_SCALE, 2 * n),
+                          _arr(fb, ib, O_B_NODE, 2 * n))
 
 
 STEP_HELD_SIG = "int64(float64[::1], int64[::1], float64, float64, float64)"
