@@ -34,7 +34,7 @@ import math
 
 from numba import njit
 
-from models.distributed_linsolve import second_order_in, second_order_out, solve, sweep, wrms
+from models.distributed_linsolve import live_states, solve, sweep, wrms
 from models.distributed_rhs import (BP_B_IN, BP_B_OUT, BP_IN_MODE, BP_K_OUT, BP_OUT_MODE,
                                     BP_R_IN, BP_R_OUT, OUT_TESTBED_MASSLESS, eval_system,
                                     mass_diag, min_tension, segment_forces)
@@ -73,7 +73,7 @@ def _newton(n, Z, psi, hg, u, text, d0, c_node, b_node, bp, work, rtol, stats) -
     j_lo = work[W_JLO]
     j_di = work[W_JDI]
     j_up = work[W_JUP]
-    n_eff = float(m + (1 if second_order_in(bp) else 0) + (1 if second_order_out(bp) else 0))
+    n_eff = live_states(n, bp)
     # convergence test of Hairer & Wanner (IV.8): stop when eta * |dZ| <= tol with the
     # contraction estimate eta = theta / (1 - theta), carried over between solves
     eta = max(stats[S_ETA], 1e-16) ** 0.8 if stats[S_ETA] > 0.0 else 1.0
@@ -157,8 +157,7 @@ def try_step(n, y, h, u1, e1, u2, e2, d0, c_node, b_node, bp, work, rtol, adapti
     for i in range(m + 2):
         R[i] = -M[i] * E[i]
     sweep(n, hg, R, work, bp, D)
-    n_eff = float(m + (1 if second_order_in(bp) else 0) + (1 if second_order_out(bp) else 0))
-    return wrms(D, Z2, work[W_ATOL], rtol, n_eff)
+    return wrms(D, Z2, work[W_ATOL], rtol, live_states(n, bp))
 
 
 @njit(cache=True)

@@ -33,6 +33,13 @@ def second_order_out(bp) -> bool:
 
 
 @njit(cache=True, inline="always")
+def live_states(n: int, bp) -> float:
+    """Number of live state components (ring entries plus velocity states), the divisor of
+    :func:`wrms` (unused velocity slots hold 0)."""
+    return float(2 * n + 2 + (1 if second_order_in(bp) else 0) + (1 if second_order_out(bp) else 0))
+
+
+@njit(cache=True, inline="always")
 def _in_coef(hg: float, bp) -> float:
     """``(J_m + hg b_m) / hg``: the input velocity row eliminated into the q_in row."""
     return (bp[BP_J_M] + hg * bp[BP_B_M]) / hg
