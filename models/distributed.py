@@ -235,10 +235,8 @@ class DistributedModel:
         if np.any(target <= 0.0):
             raise OperatingRangeError(f"shift_pretension({delta_N} N) would make a segment slack "
                                       f"(min tension {target.min():.3f} N)")
-        k = self.trans.segment_stiffness_N_m
         disp_now = self._elongation_for(self._fseg[segs]) - self._d0[segs]
         self._d0[segs] = self._elongation_for(target) - disp_now
-        del k
         self._refresh_obs()
 
     def _refresh_obs(self) -> None:
@@ -309,10 +307,8 @@ class DistributedModel:
         """:meth:`step` with ``mu_scale`` or ``b_node_Ns_m`` replaced by arrays other than the
         model's own (passed to the kernel as they are, so later in-place changes count).
 
-        :returns: the kernel's status code.
+        :returns: the kernel's status code (``kern.ERR_DT`` for a ``dt_s`` not > 0).
         """
-        if not dt_s > 0.0:
-            return kern.ERR_DT
         self._check_node_arrays()
         return kern.step_held_with(self._fb, self._ib, float(dt_s), float(u_Nm), float(tau_ext_Nm),
                                    self.mu_scale, self.b_node_Ns_m)
