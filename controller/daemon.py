@@ -44,6 +44,9 @@ log = logging.getLogger(__name__)
 #: loop-detected limit violation (joint angle/rate, motor speed, tension); bit 12 of the
 #: "outside the step" range of FaultBits
 LIMIT_VIOLATION = 1 << 12
+#: a wake-to-wake interval above this many periods before a fault is named in the fault text
+#: (the loop was not run: on a shared VM, a host stall stops the drive simulator too)
+STALL_PERIODS = 5
 
 
 class Phase(IntEnum):
@@ -71,6 +74,9 @@ class RunSummary:
     threads: list[str] = field(default_factory=list)
     cpu_s: dict[str, float] = field(default_factory=dict)
     loop_wall_s: float = 0.0
+    #: wake-to-wake interval that ended at the faulted cycle [s] (0 without a fault); longer
+    #: than a sensor timeout, the process itself was not run (host stall), see :data:`STALL_PERIODS`
+    fault_gap_s: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields."""
@@ -293,7 +299,9 @@ class Daemon:
             self.summary.cycles = cycle
             if fault:
                 self._finish_summary(sl, stats, sink, cpu0, wall0)
-                self._fault(motor, sink, hist, cycle, fault, reason or fault_names(fault), t_s)
+                gap_s = (wake - prev_wake) * 1e-9
+                self._fault(motor, sink, hist, cycle, fault, reason or fault_names(fault), t_s, gap_s,
+                            L.period_s)
             if phase == Phase.RAMPING and ramp_left <= 0:
                 break
             if end_ns is not None and wake >= end_ns:
@@ -320,8 +328,13 @@ class Daemon:
         self._finish_summary(sl, stats, sink, cpu0, wall0)
 
     def _fault(self, motor: Any, sink: LogSink, hist: np.ndarray, cycles: int, bits: int,
-               reason: str, t_s: float) -> None:
-        """Torque is already zero this cycle: disable the drive, report, raise."""
+               reason: str, t_s: float, gap_s: float, period_s: float) -> None:
+        """Torque is already zero this cycle: disable the drive, report, raise.
+
+        ``gap_s`` is the loop's own wake-to-wake interval ending at this cycle [s]: when it
+        exceeds :data:`STALL_PERIODS` periods the reason says so — stale sensors and a lost
+        heartbeat after such a gap mean the process got no CPU, not that a device went quiet.
+        """
         self.phase = Phase.FAULTED
         try:
             motor.disable()
@@ -330,6 +343,10 @@ class Daemon:
         n = min(cycles, len(hist))
         last = np.roll(hist, -(cycles % len(hist)))[-n:] if cycles >= len(hist) else hist[:n].copy()
         text = f"{fault_names(bits)}: {reason}"
+        self.summary.fault_gap_s = gap_s
+        if gap_s > STALL_PERIODS * period_s:
+            text += (f"; the loop itself had not run for {gap_s * 1e3:.1f} ms before this cycle "
+                     f"(host stall: the process got no CPU)")
         self.summary.faults.append(text)
         sink.fault(t_s, text, code=bits, n_cycles=len(hist))
         log.error("FAULT at t=%.3f s: %s (drive disabled; last %d cycles logged)", t_s, text, n)

@@ -27,6 +27,7 @@ import yaml
 from controller.config import ControllerConfig
 from controller.core import Controller
 from controller.step import N_CFG
+from hil_helpers import run_hil
 from models.errors import ConfigError
 from models.rig import SimulatedRig
 from models.signals import dwell_states
@@ -193,10 +194,9 @@ def test_merge_keeps_the_catalogued_effects_and_leaves_empirical_curves_out_on_r
 # ------------------------------------------------------------------ the real commands
 def _hil(cfg: dict, path: Path, duration_s: float) -> dict:
     path.write_text(yaml.safe_dump(cfg))
-    res = subprocess.run([sys.executable, "-m", "tools.cli", "hil", "--config", str(path), "--duration",
-                          str(duration_s), "--json"], cwd=REPO, capture_output=True, text=True, timeout=240)
+    res, summary = run_hil(path, duration_s, cwd=REPO)
     assert res.returncode == 0, res.stderr[-3000:]
-    return json.loads(res.stdout)
+    return summary
 
 
 @pytest.mark.slow

@@ -162,6 +162,7 @@ def summarize(daemon: Daemon | None, plant: Mapping[str, Any], wall_s: float) ->
         "gil_wait_p999_us": t.get("gil_wait_p999_us", nan),
         "gil_wait_max_us": t.get("gil_wait_max_us", nan),
         "faults": list(s.faults) if s else [],
+        "fault_gap_s": s.fault_gap_s if s else 0.0,
         "dropped_log_records": s.dropped_log_records if s else 0,
         "log_path": s.log_path if s else None,
         "cpu_s": dict(s.cpu_s) if s else {},
