@@ -299,9 +299,8 @@ class Daemon:
             self.summary.cycles = cycle
             if fault:
                 self._finish_summary(sl, stats, sink, cpu0, wall0)
-                gap_s = (wake - prev_wake) * 1e-9
-                self._fault(motor, sink, hist, cycle, fault, reason or fault_names(fault), t_s, gap_s,
-                            L.period_s)
+                self._fault(motor, sink, hist, cycle, fault, reason or fault_names(fault), t_s,
+                            float(r["period_s"]))
             if phase == Phase.RAMPING and ramp_left <= 0:
                 break
             if end_ns is not None and wake >= end_ns:
@@ -328,7 +327,7 @@ class Daemon:
         self._finish_summary(sl, stats, sink, cpu0, wall0)
 
     def _fault(self, motor: Any, sink: LogSink, hist: np.ndarray, cycles: int, bits: int,
-               reason: str, t_s: float, gap_s: float, period_s: float) -> None:
+               reason: str, t_s: float, gap_s: float) -> None:
         """Torque is already zero this cycle: disable the drive, report, raise.
 
         ``gap_s`` is the loop's own wake-to-wake interval ending at this cycle [s]: when it
@@ -344,7 +343,7 @@ class Daemon:
         last = np.roll(hist, -(cycles % len(hist)))[-n:] if cycles >= len(hist) else hist[:n].copy()
         text = f"{fault_names(bits)}: {reason}"
         self.summary.fault_gap_s = gap_s
-        if gap_s > STALL_PERIODS * period_s:
+        if gap_s > STALL_PERIODS * self.cfg.loop.period_s:
             text += (f"; the loop itself had not run for {gap_s * 1e3:.1f} ms before this cycle "
                      f"(host stall: the process got no CPU)")
         self.summary.faults.append(text)

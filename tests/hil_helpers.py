@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import yaml
 
-EXIT_FAULT = 3          #: ``capstan hil`` exit code after a control fault
+from controller.daemon_cmd import EXIT_FAULT
 
 
 def shortest_sensor_timeout_s(config: Path) -> float:
@@ -43,23 +43,28 @@ def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProces
     """Run ``attempt`` (returns the finished process and its stdout) until it did not end
     on a host stall, at most ``tries`` times; returns the last process and its summary."""
     timeout_s = shortest_sensor_timeout_s(config)
-    for k in range(tries):
+    for k in range(1, tries + 1):
         res, out = attempt()
         summary = json.loads(out) if out.strip() else {}
-        if not (res.returncode == EXIT_FAULT and host_stalled(summary, timeout_s)) or k == tries - 1:
-            return res, summary
+        if k == tries or not (res.returncode == EXIT_FAULT and host_stalled(summary, timeout_s)):
+            break
         warnings.warn(f"host stall of {summary['fault_gap_s'] * 1e3:.0f} ms faulted the HIL run "
                       f"(rig lost {summary['plant']['lost_s'] * 1e3:.0f} ms); rerunning", stacklevel=2)
-    raise AssertionError("unreachable")
+    return res, summary
 
 
-def run_hil(config: Path, duration_s: float, cwd: Path, timeout_s: float = 240.0,
-            env: dict[str, str] | None = None) -> tuple[subprocess.CompletedProcess, dict[str, Any]]:
+def hil_argv(config: Path, duration_s: float, *extra: str) -> list[str]:
+    """The command line of ``capstan hil --config CONFIG --duration D [EXTRA...]``."""
+    return [sys.executable, "-m", "tools.cli", "hil", "--config", str(config), "--duration", str(duration_s),
+            *extra]
+
+
+def run_hil(config: Path, duration_s: float, cwd: Path,
+            timeout_s: float = 240.0) -> tuple[subprocess.CompletedProcess, dict[str, Any]]:
     """``capstan hil --config CONFIG --duration D --json``, rerun after a host stall."""
     def attempt() -> tuple[subprocess.CompletedProcess, str]:
-        res = subprocess.run([sys.executable, "-m", "tools.cli", "hil", "--config", str(config), "--duration",
-                              str(duration_s), "--json"], cwd=cwd, capture_output=True, text=True,
-                             timeout=timeout_s, env=env)
+        res = subprocess.run(hil_argv(config, duration_s, "--json"), cwd=cwd, capture_output=True, text=True,
+                             timeout=timeout_s)
         return res, res.stdout
 
     return run_until_undisturbed(attempt, config)

@@ -24,7 +24,8 @@ import pytest
 import yaml
 
 from controller.log_reader import read_log
-from hil_helpers import host_stalled, run_until_undisturbed, shortest_sensor_timeout_s
+from controller.daemon_cmd import EXIT_FAULT
+from hil_helpers import hil_argv, host_stalled, run_until_undisturbed, shortest_sensor_timeout_s
 
 REPO = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow
@@ -41,9 +42,8 @@ def hil_config(tmp_path: Path) -> Path:
 
 
 def _start(config: Path, duration_s: float, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tools.cli", "hil", "--config", str(config),
-                             "--duration", str(duration_s), *extra],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(hil_argv(config, duration_s, *extra), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
 
 
 def _wait_for(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> list[str]:
@@ -85,8 +85,7 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
         done.clear()
         listener = threading.Thread(target=listen, daemon=True)
         listener.start()
-        res = subprocess.run([sys.executable, "-m", "tools.cli", "hil", "--config", str(hil_config),
-                              "--duration", "2", "--json"], cwd=REPO, capture_output=True, text=True,
+        res = subprocess.run(hil_argv(hil_config, 2, "--json"), cwd=REPO, capture_output=True, text=True,
                              timeout=150, env=env)
         time.sleep(0.3)
         done.set()
@@ -197,7 +196,7 @@ def test_a_host_stall_longer_than_the_sensor_timeouts_faults_and_the_reason_says
     for pid in pids:
         os.kill(pid, signal.SIGCONT)
     out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 3, err[-3000:]            # a control fault, not a crash
+    assert proc.returncode == EXIT_FAULT, err[-3000:]   # a control fault, not a crash
     summary = json.loads(out)
     assert len(summary["faults"]) == 1
     fault = summary["faults"][0]
