@@ -8,8 +8,8 @@ this module imports no driver (as python-can's interface table), so a rig withou
 ``canopen`` installed can still run tools that do not touch the drive.
 
 Adding a backend: one line in :data:`BACKENDS`; the class implements the role's
-interface of :mod:`drivers.interfaces` and validation raises
-:class:`models.errors.ConfigError` on bad options.
+interface of :mod:`capstan.drivers.interfaces` and validation raises
+:class:`capstan.models.common.errors.ConfigError` on bad options.
 """
 
 from __future__ import annotations
@@ -17,18 +17,18 @@ from __future__ import annotations
 import importlib
 from typing import Any, Mapping
 
-from models.errors import ConfigError
+from capstan.models.common.errors import ConfigError
 
 #: role -> backend name -> (module, class, config class "module:Class" or "" for from_config)
 BACKENDS: dict[str, dict[str, tuple[str, str, str]]] = {
     "motor": {
-        "canopen": ("drivers.canopen_motor", "CanopenMotor", "drivers.motor_config:MotorConfig"),
+        "canopen": ("capstan.drivers.canopen.motor", "CanopenMotor", "capstan.drivers.canopen.config:MotorConfig"),
     },
     "imu": {
-        "xsens": ("drivers.xsens", "XsensImu", ""),
+        "xsens": ("capstan.drivers.serial.xsens", "XsensImu", ""),
     },
     "load_cells": {
-        "serial": ("drivers.loadcell", "SerialLoadCells", ""),
+        "serial": ("capstan.drivers.serial.loadcell", "SerialLoadCells", ""),
     },
 }
 

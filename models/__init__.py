@@ -1,11 +1,21 @@
-"""Physics and estimation for the capstan tendon-sheath joint: no I/O here (but for
-``numba_cache``, which places the Numba cache by a fingerprint of the sources).
+"""Physics and estimation for the capstan tendon-sheath joint: no device I/O.
 
-Routing and pretension, the distributed full-order model, the reduced model and
-baselines, the simulated rig, the effect catalogue and identification math.
+Subpackages, lowest first (each may import the ones below it, never above):
+
+- :mod:`capstan.models.common`: the exception hierarchy, config validation helpers,
+  the measurement table of the exchange format, the Numba cache placement.
+- :mod:`capstan.models.transmission`: routing, pretension field, reduced model,
+  baselines, LuGre, the link.
+- :mod:`capstan.models.distributed`: the distributed full-order model and its stiff
+  integrator.
+- :mod:`capstan.models.plant` and :mod:`capstan.models.closure` (independent of each
+  other): the simulated rig with injected effects; identification and model closure.
+
+Nothing here imports :mod:`capstan.controller`, :mod:`capstan.drivers` or
+:mod:`capstan.tools`.
 """
 
 # Numba cache keyed by the package sources, set before any compiled module is imported
-from models.numba_cache import configure_cache as _configure_cache  # noqa: E402
+from capstan.models.common.numba_cache import configure_cache as _configure_cache  # noqa: E402
 
 _configure_cache()

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import can
 
-from drivers.can_unix import UnixSocketBus
-from drivers.canopen_motor import CanopenMotor
-from drivers.motor_config import MotorConfig
-from drivers.sim_drive import SimDrive
+from capstan.drivers.can_unix import UnixSocketBus
+from capstan.drivers.canopen.motor import CanopenMotor
+from capstan.drivers.canopen.config import DATA_DIR, MotorConfig
+from capstan.drivers.sim.drive import SimDrive
 
 ROOT = Path(__file__).resolve().parents[1]
-CAPSTAN_EDS = str(ROOT / "drivers" / "data" / "capstan_drive.eds")
+CAPSTAN_EDS = str(DATA_DIR / "capstan_drive.eds")
 VENDOR_EDS = str(ROOT / "tests" / "data" / "nanotec_C5-E-2-09.eds")
 NODE_ID = 3
 

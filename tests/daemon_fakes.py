@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from controller.daemon_config import DaemonConfig
-from controller.records import RECORD_DTYPE, FaultBits
-from drivers.interfaces import DeviceSet, ImuSample, LinkStats, LoadCellSample, MotorReading
-from models.errors import DriveFaultError, HeartbeatLostError
+from capstan.controller.runtime.config import DaemonConfig
+from capstan.controller.law.records import RECORD_DTYPE, FaultBits
+from capstan.drivers.interfaces import DeviceSet, ImuSample, LinkStats, LoadCellSample, MotorReading
+from capstan.models.common.errors import DriveFaultError, HeartbeatLostError
 
 
 class FakeController:

@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import yaml
 
-from controller.daemon_cmd import EXIT_FAULT
+from capstan.tools.commands.run import EXIT_FAULT
 
 
 def shortest_sensor_timeout_s(config: Path) -> float:
@@ -55,7 +55,7 @@ def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProces
 
 def hil_argv(config: Path, duration_s: float, *extra: str) -> list[str]:
     """The command line of ``capstan hil --config CONFIG --duration D [EXTRA...]``."""
-    return [sys.executable, "-m", "tools.cli", "hil", "--config", str(config), "--duration", str(duration_s),
+    return [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(config), "--duration", str(duration_s),
             *extra]
 
 

@@ -22,7 +22,7 @@ Equations (massless, first order):
   (13) f_fric,i = mu f_N eps / (1+|eps|^p)^(1/p),  eps = f_in,i / (mu f_N),
        f_in,i = f_{i-1,i} - f_{i,i+1}
 
-Choices (defaults documented in models/distributed_params.py):
+Choices (defaults documented in models/distributed/params.py):
   k (segment) = (N+1) K_c / (2 r_in r_out);  b (per internal node) = 1.0 N s/m;
   p = 100;  b_in = 1e-3 Nm s/rad (torque mode: b_in dq_in = tau_in - tau_cable);
   testbed output massless, k_out = 20 Nm/rad, b_out = 2 Nm s/rad;

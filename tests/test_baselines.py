@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from models.baselines import (
+from capstan.models.transmission.baselines import (
     BaselineKind,
     GatedTransmission,
     PretensionAverage,
@@ -19,10 +19,10 @@ from models.baselines import (
     single_sided_pretension_N,
     wu_model,
 )
-from models.errors import ModelError
-from models.pretension import pretension_field
-from models.reduced import ReducedModel, StribeckParams
-from models.routing import Routing
+from capstan.models.common.errors import ModelError
+from capstan.models.transmission.pretension import pretension_field
+from capstan.models.transmission.reduced import ReducedModel, StribeckParams
+from capstan.models.transmission.routing import Routing
 
 MU, L, R = 0.052, 1.379, 0.04
 

@@ -1,4 +1,4 @@
-"""Smoke run of the distributed-model speed benchmark (tools/bench_distributed.py) on a
+"""Smoke run of the distributed-model speed benchmark (tools/bench/distributed.py) on a
 small N: every mode meets the 0.01 Nm accuracy bound against the reference, Radau finds a
 matched tolerance on the same equations, and the reference agrees with tight Radau."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 
-from tools import bench_distributed
+from capstan.tools.bench import distributed as bench_distributed
 
 
 def test_bench_smoke_run_reports_accuracy_rates_and_radau(capsys) -> None:

@@ -12,7 +12,7 @@ import time
 import can
 import pytest
 
-from drivers.can_unix import UnixSocketBus
+from capstan.drivers.can_unix import UnixSocketBus
 
 
 @pytest.fixture

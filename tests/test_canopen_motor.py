@@ -9,10 +9,10 @@ import can
 import pytest
 
 from cia402_helpers import CAPSTAN_EDS, NODE_ID, ROOT, VENDOR_EDS, Rig, Spy, make_motor, run_cycles
-from drivers.canopen_motor import CanopenMotor, ObjectMissingError
-from drivers.cia402 import State402
-from drivers.motor_config import MotorConfig
-from models.errors import (ConfigError, DriveFaultError, DriverError, HeartbeatLostError)
+from capstan.drivers.canopen.motor import CanopenMotor, ObjectMissingError
+from capstan.drivers.canopen.cia402 import State402
+from capstan.drivers.canopen.config import MotorConfig
+from capstan.models.common.errors import (ConfigError, DriveFaultError, DriverError, HeartbeatLostError)
 
 SDO_RX = 0x600 + NODE_ID
 
@@ -319,8 +319,8 @@ def test_bad_configuration_names_the_key(cfg, key):
 
 
 def test_shipped_example_config_builds_the_motor_through_the_registry():
-    from drivers import registry
-    from models.config_tools import load_yaml
+    from capstan.drivers import registry
+    from capstan.models.common.config_tools import load_yaml
     cfg = load_yaml(ROOT / "config" / "motor.yaml")["motor"]
     motor = registry.create("motor", cfg)
     assert isinstance(motor, CanopenMotor)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.cia402 import (CONTROLWORD, Command402, State402, STATUSWORD_BITS, TRANSITIONS,
+from capstan.drivers.canopen.cia402 import (CONTROLWORD, Command402, State402, STATUSWORD_BITS, TRANSITIONS,
                             decode_controlword, decode_statusword, drive_transition, path_to)
-from drivers.emcy import decode_emcy, describe_code, encode_emcy
-from models.errors import ProtocolError
+from capstan.drivers.canopen.emcy import decode_emcy, describe_code, encode_emcy
+from capstan.models.common.errors import ProtocolError
 
 S = State402
 

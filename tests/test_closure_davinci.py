@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from tools.cli import main
-from tools.run_inputs import load_runs
+from capstan.tools.cli import main
+from capstan.tools.offline.run_inputs import load_runs
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "datasets" / "davinci-cable-tool"

@@ -35,10 +35,10 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from models.closure import ClosureResult, close
-from models.effect_plant import FAST_MULTISINE, MULTISINE_HOLDS, ExcitationDesign, Injection, PlantParams, simulate_run
-from models.effects import Target
-from models.signals import signals_from_tables
+from capstan.models.closure.pipeline import ClosureResult, close
+from capstan.models.plant.effect_plant import FAST_MULTISINE, MULTISINE_HOLDS, ExcitationDesign, Injection, PlantParams, simulate_run
+from capstan.models.closure.effects import Target
+from capstan.models.closure.signals import signals_from_tables
 
 pytestmark = pytest.mark.slow
 

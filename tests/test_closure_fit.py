@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.baseline_shape import ShapeProblem, design, fit_shape
-from models.closure_model import Realign, argmin_int, realigned_inputs, realigned_signals
-from models.errors import ModelError
-from models.identification import ModelKind, friction_basis
-from models.signals import Signals
+from capstan.models.closure.baseline_shape import ShapeProblem, design, fit_shape
+from capstan.models.closure.augmented import Realign, argmin_int, realigned_inputs, realigned_signals
+from capstan.models.common.errors import ModelError
+from capstan.models.closure.identification import ModelKind, friction_basis
+from capstan.models.closure.signals import Signals
 
 
 def _signals(n_runs: int = 2, n: int = 3000, dt_s: float = 1e-3, seed: int = 0) -> Signals:

@@ -1,7 +1,7 @@
 import pytest
 
-from models.config_tools import get_choice, get_float, get_int, load_yaml, reject_unknown
-from models.errors import ConfigError
+from capstan.models.common.config_tools import get_choice, get_float, get_int, load_yaml, reject_unknown
+from capstan.models.common.errors import ConfigError
 
 
 def test_get_float_bounds_and_types():

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.records import FaultBits
-from models.plant_config import plant_from_mapping
-from models.rig import SensorNoise, SimulatedRig
-from tools.interaction import LockStep
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.records import FaultBits
+from capstan.models.plant.config import plant_from_mapping
+from capstan.models.plant.rig import SensorNoise, SimulatedRig
+from capstan.tools.experiments.interaction import LockStep
 
 AMP_NM = 3.0
 F_HZ = 1.0

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.daemon import LIMIT_VIOLATION, Daemon, Phase
-from controller.daemon_log import NullSink
-from controller.records import FaultBits
-from controller.sd_notify import SdNotifier
-from models.errors import ControlFaultError, DeviceTimeoutError
+from capstan.controller.runtime.daemon import LIMIT_VIOLATION, Daemon, Phase
+from capstan.controller.runtime.session_log import NullSink
+from capstan.controller.law.records import FaultBits
+from capstan.controller.runtime.sd_notify import SdNotifier
+from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError
 from tests.daemon_fakes import (FakeController, FakeImu, FakeLoadCells, FakeMotor, NotifyListener, config,
                                 devices)
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from controller.daemon_config import DaemonConfig
-from controller.realtime import RealtimeMode
-from drivers import registry
-from models.errors import ConfigError
+from capstan.controller.runtime.config import DaemonConfig
+from capstan.controller.runtime.realtime import RealtimeMode
+from capstan.drivers import registry
+from capstan.models.common.errors import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -26,7 +26,7 @@ def test_shipped_configs_validate(name: str) -> None:
     cfg = DaemonConfig.load(REPO / "config" / name)
     assert cfg.loop.period_s == pytest.approx(1e-3)
     assert cfg.logging.dir.is_absolute()
-    from controller.config import ControllerConfig
+    from capstan.controller.law.config import ControllerConfig
     ControllerConfig.from_mapping(cfg.controller)
 
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drivers.loadcell_protocol import build_frame
-from drivers.sim_serial import SimXsens
-from drivers.xsens_protocol import Mid, build_message
-from tools.cli import main
+from capstan.drivers.serial.loadcell_protocol import build_frame
+from capstan.drivers.sim.serial_devices import SimXsens
+from capstan.drivers.serial.xsens_protocol import Mid, build_message
+from capstan.tools.cli import main
 
 GOLDEN = yaml.safe_load((Path(__file__).parent / "data" / "xsens_mti300_golden.yaml").read_text())
 

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from models import distributed_integrator as di
-from models import distributed_linsolve as ls
-from models import distributed_rhs as rhs
-from models.distributed import (BoundaryParams, DistributedModel, InputMode, OutputMode,
+from capstan.models.distributed import integrator as di
+from capstan.models.distributed import linsolve as ls
+from capstan.models.distributed import rhs as rhs
+from capstan.models.distributed.model import (BoundaryParams, DistributedModel, InputMode, OutputMode,
                                 TransmissionParams, _node_coefficients)
-from models.distributed_dense import _resolved_step
-from models.distributed_ode import ode_problem
-from models.errors import ConfigError
-from models.link import LinkParams
+from capstan.models.distributed.dense import _resolved_step
+from capstan.models.distributed.ode import ode_problem
+from capstan.models.common.errors import ConfigError
+from capstan.models.transmission.link import LinkParams
 
 
 def _friction_direct(fa: float, fb: float, c: float, p: float) -> float:
@@ -324,7 +324,7 @@ def test_loose_tolerance_keeps_the_benchmark_accuracy_bound() -> None:
     at rtol 1e-4 - the benchmark's matched rung, with the looser Newton test that rtol
     brings - stays within the benchmark's 0.01 Nm of a rtol 1e-9 reference, and the
     default rtol 1e-6 within 1e-3 Nm."""
-    from tools.bench_distributed import DEFAULT_SCENARIO, scenario_inputs
+    from capstan.tools.bench.distributed import DEFAULT_SCENARIO, scenario_inputs
 
     sc, t, u = scenario_inputs(DEFAULT_SCENARIO, 10, 3.0)
     model = DistributedModel(sc.plant.transmission, sc.plant.boundary)

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from models.distributed import (BoundaryParams, DistributedModel, InputMode, OutputMode,
+from capstan.models.distributed.model import (BoundaryParams, DistributedModel, InputMode, OutputMode,
                                 TransmissionParams)
-from models.errors import ConfigError, OperatingRangeError
-from models.link import LinkParams
+from capstan.models.common.errors import ConfigError, OperatingRangeError
+from capstan.models.transmission.link import LinkParams
 
 MU = 0.052
 R = 0.04

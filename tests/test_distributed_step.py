@@ -12,9 +12,9 @@ import pickle
 import numpy as np
 import pytest
 
-from models import distributed_kernels as kern
-from models.distributed import BoundaryParams, DistributedModel, TransmissionParams
-from models.errors import ConfigError
+from capstan.models.distributed import kernels as kern
+from capstan.models.distributed.model import BoundaryParams, DistributedModel, TransmissionParams
+from capstan.models.common.errors import ConfigError
 
 N = 4
 

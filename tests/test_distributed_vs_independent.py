@@ -2,7 +2,7 @@
 
 ``tests/independent_distributed.py`` was written from the paper (eqs 2-13, 23) and the
 sign errata of design.md only, as a dense numpy ODE solved by scipy Radau at tight
-tolerances; it shares no code with :mod:`models.distributed`. Agreement to micro-Nm on
+tolerances; it shares no code with :mod:`capstan.models.distributed.model`. Agreement to micro-Nm on
 these scenarios means both implement the same equations (incl. eq 9 as arc length
 ``r q``); the acceptance bound for an outside implementation is 0.05 Nm RMSE.
 """
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.distributed import BoundaryParams, DistributedModel, TransmissionParams
+from capstan.models.distributed.model import BoundaryParams, DistributedModel, TransmissionParams
 from tests.independent_distributed import IndepModel, Params, pretension_field, uniform_params
-from tools.bench_distributed import scenario_inputs
+from capstan.tools.bench.distributed import scenario_inputs
 
 SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "testbed_multisine.yaml"
 #: far below the 0.05 Nm acceptance bound: the two solve the same ODE to rtol 1e-8

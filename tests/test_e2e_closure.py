@@ -24,17 +24,17 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.step import N_CFG
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.step import N_CFG
 from hil_helpers import run_hil
-from models.errors import ConfigError
-from models.rig import SimulatedRig
-from models.signals import dwell_states
-from tools.breakaway import breakaways
-from tools.e2e_closure import merge_fragment, without_effects
-from tools.hil_hand import Hand, HandSettings
-from tools.interaction import LockStep
+from capstan.models.common.errors import ConfigError
+from capstan.models.plant.rig import SimulatedRig
+from capstan.models.closure.signals import dwell_states
+from capstan.tools.experiments.breakaway import breakaways
+from capstan.tools.experiments.e2e_closure import merge_fragment, without_effects
+from capstan.tools.hil.hand import Hand, HandSettings
+from capstan.tools.experiments.interaction import LockStep
 
 REPO = Path(__file__).resolve().parent.parent
 CFG = yaml.safe_load((REPO / "config" / "hil_effect.yaml").read_text())
@@ -201,8 +201,8 @@ def _hil(cfg: dict, path: Path, duration_s: float) -> dict:
 
 @pytest.mark.slow
 def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(tmp_path: Path) -> None:
-    from controller.log_reader import read_log
-    from tools.run_inputs import load_run
+    from capstan.controller.log.reader import read_log
+    from capstan.tools.offline.run_inputs import load_run
 
     cfg = copy.deepcopy(CFG)
     cfg["logging"]["dir"] = str(tmp_path / "logs")
@@ -217,7 +217,7 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
     assert _check_breakaways(run, True, 0.7, 1.15) >= 2     # real time: jitter widens the onset timing
 
     rep = tmp_path / "close"
-    res = subprocess.run([sys.executable, "-m", "tools.cli", "close", out["log_path"], "--report", str(rep),
+    res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "close", out["log_path"], "--report", str(rep),
                           "--json", "--no-progress"], cwd=REPO, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     summary = json.loads(res.stdout)
@@ -231,7 +231,7 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
     log = read_log(out_b["log_path"])
     assert log.config["controller"]["feedforward"]["effects"] == frag["controller"]["feedforward"]["effects"]
     assert Controller(ControllerConfig.from_mapping(log.config["controller"])).cfg_array[N_CFG] == n_fx
-    rp = subprocess.run([sys.executable, "-m", "tools.cli", "replay", out_b["log_path"], "--json"],
+    rp = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "replay", out_b["log_path"], "--json"],
                         cwd=REPO, capture_output=True, text=True, timeout=120)
     assert rp.returncode == 0, rp.stderr[-3000:]
     assert json.loads(rp.stdout)["max_abs_dtau_m_Nm"] == 0.0

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.excitation import Hold, Multisine, SineComponent, excitation_from_mapping
+from capstan.models.common.errors import ConfigError
+from capstan.models.plant.excitation import Hold, Multisine, SineComponent, excitation_from_mapping
 
 
 def test_multisine_matches_closed_form_after_fade_in():

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.mcap_log import McapLog
-from models.errors import DataFormatError
-from tools.cli import main
-from tools.export_cmd import records_to_table
-from tools.measurement_table import read_table
+from capstan.controller.log.mcap_log import McapLog
+from capstan.models.common.errors import DataFormatError
+from capstan.tools.cli import main
+from capstan.tools.offline.log_table import records_to_table
+from capstan.models.common.measurement_table import read_table
 
 from test_replay import simulate_run, write_log
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.feedforward import friction_curve_Nm, friction_torque_per_N
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.feedforward import friction_curve_Nm, friction_torque_per_N
 
 MU = 0.052
 R = 0.04
@@ -114,8 +114,8 @@ def test_gain_and_disable():
 
 def test_step_uses_the_reduced_model_friction_law():
     """The step's feedforward equals models.reduced's eq (21) evaluated in plain Python
-    (also guards against a stale Numba cache after models/reduced.py changes)."""
-    from models.reduced import stribeck_friction_Nm
+    (also guards against a stale Numba cache after models/transmission/reduced.py changes)."""
+    from capstan.models.transmission.reduced import stribeck_friction_Nm
 
     ctl = _ctl()
     ff = ctl.cfg.feedforward

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.log_reader import read_log
-from controller.daemon_cmd import EXIT_FAULT
+from capstan.controller.log.reader import read_log
+from capstan.tools.commands.run import EXIT_FAULT
 from hil_helpers import hil_argv, host_stalled, run_until_undisturbed, shortest_sensor_timeout_s
 
 REPO = Path(__file__).resolve().parent.parent
@@ -126,7 +126,7 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
     assert rec["phase"][0] == 0 and rec["phase"][-1] == 2
     assert np.all(rec["tau_m_cmd_Nm"][rec["phase"] == 0] == 0.0)
     assert rec["cmd_scale"][-1] == 0.0 and np.all(rec["cmd_scale"][rec["phase"] == 1] == 1.0)
-    rep = subprocess.run([sys.executable, "-m", "tools.cli", "replay", out["log_path"], "--json"],
+    rep = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "replay", out["log_path"], "--json"],
                          cwd=REPO, capture_output=True, text=True, timeout=120)
     assert rep.returncode == 0, rep.stderr[-3000:]
     replay = json.loads(rep.stdout)

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from tools.interaction import CONDITIONS, HumanModel, controller_mapping, run_interaction
+from capstan.tools.experiments.interaction import CONDITIONS, HumanModel, controller_mapping, run_interaction
 
 DURATION_S = 6.5          # one full slow cycle: rest, stroke up, rest, stroke down
 
@@ -59,7 +59,7 @@ def test_human_reference_profile():
 
 
 def test_cli_parser_has_both_subcommands():
-    from tools import experiment_cmd
+    from capstan.tools.commands import experiment as experiment_cmd
 
     parser = argparse.ArgumentParser()
     experiment_cmd.add_arguments(parser)

@@ -3,15 +3,14 @@ and the observer removing a step disturbance on the exactly discretized nominal 
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 from scipy import signal
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.ldo import derivative_filter_coefficients, q_filter_coefficients, qpinv_filter_coefficients
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.ldo import derivative_filter_coefficients, q_filter_coefficients, qpinv_filter_coefficients
 
 DT = 1e-3
 F_HZ = np.linspace(0.05, 100.0, 2000)

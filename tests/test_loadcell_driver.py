@@ -9,10 +9,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.interfaces import LoadCells
-from drivers.loadcell import LoadCellConfig, SerialLoadCells
-from drivers.sim_serial import PtyPair, SerialFault, SimLoadCellAmp, open_pty_pair
-from models.errors import ConfigError, DeviceTimeoutError
+from capstan.drivers.interfaces import LoadCells
+from capstan.drivers.serial.loadcell import LoadCellConfig, SerialLoadCells
+from capstan.drivers.sim.serial_devices import PtyPair, SerialFault, SimLoadCellAmp, open_pty_pair
+from capstan.models.common.errors import ConfigError, DeviceTimeoutError
 
 SECTION = {"scale_N_per_mV_V": [200.0, 250.0, 300.0, 400.0], "offset_N": [1.0, -2.0, 0.0, 5.0]}
 

@@ -6,7 +6,7 @@ import math
 import random
 import struct
 
-from drivers.loadcell_protocol import FRAME_LEN, LoadCellParser, build_frame, parse_frame
+from capstan.drivers.serial.loadcell_protocol import FRAME_LEN, LoadCellParser, build_frame, parse_frame
 
 
 def test_frame_bytes_exact() -> None:

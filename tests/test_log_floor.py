@@ -1,12 +1,12 @@
-"""The log-size floor analysis (tools/log_floor.py) converts losslessly or says so."""
+"""The log-size floor analysis (tools/bench/log_floor.py) converts losslessly or says so."""
 
 import numpy as np
 import pytest
 
-from controller.records import LOG_FLOAT32_FIELDS
-from tools.bench_logging import (LC_SCALE_N_PER_MV_V, RAD_PER_COUNT, RAD_S_PER_UNIT, RATED_TORQUE_NM,
+from capstan.controller.law.records import LOG_FLOAT32_FIELDS
+from capstan.tools.bench.logs import (LC_SCALE_N_PER_MV_V, RAD_PER_COUNT, RAD_S_PER_UNIT, RATED_TORQUE_NM,
                                  realistic_records)
-from tools.log_floor import WireScales, column_costs, fixed_point_columns, floor_table
+from capstan.tools.bench.log_floor import WireScales, column_costs, fixed_point_columns, floor_table
 
 SCALES = WireScales(LC_SCALE_N_PER_MV_V, RAD_PER_COUNT, RAD_S_PER_UNIT, RATED_TORQUE_NM)
 

@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from controller.log_ring import LogRing, RingError
+from capstan.controller.log.ring import LogRing, RingError
 
 DT = np.dtype([("t_s", "<f8"), ("k", "<i8"), ("x", "<f4"), ("flag", "?"), ("bits", "<u2")])
 
@@ -101,7 +101,7 @@ def test_cross_process_producer_no_loss_no_tearing() -> None:
     n = 200_000
     code = textwrap.dedent(f"""
         import numpy as np
-        from controller.log_ring import LogRing
+        from capstan.controller.log.ring import LogRing
         ring = LogRing.attach({ring.name!r})
         r = np.zeros(1, ring.dtype)
         k = 0

@@ -3,7 +3,6 @@ kills and drops. Uses its own record dtypes (the logging code is generic)."""
 
 from __future__ import annotations
 
-import os
 import signal
 import struct
 import subprocess
@@ -16,10 +15,10 @@ import numpy as np
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from controller.log_reader import read_log, read_logs
-from controller.log_writer import LIVE_ZSTD_LEVEL, LogSession
-from controller.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog
-from controller.mcap_schema import LogFormatError, build_layout
+from capstan.controller.log.reader import read_log, read_logs
+from capstan.controller.log.writer import LIVE_ZSTD_LEVEL, LogSession
+from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog
+from capstan.controller.log.schema import LogFormatError, build_layout
 
 DT = np.dtype([("t_s", "<f8"), ("tau_in_Nm", "<f8"), ("q_out_rad", "<f8"), ("x32", "<f4"),
                ("i16", "<i2"), ("i32", "<i4"), ("u8f", "<u1"), ("u64", "<u8"), ("i64", "<i8"),
@@ -295,7 +294,7 @@ def test_daemon_sigkill_writer_closes_file(tmp_path: Path) -> None:
         import os, signal, sys, time
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_log_writer import DT, make_records, _pace
-        from controller.log_writer import LIVE_ZSTD_LEVEL, LogSession
+        from capstan.controller.log.writer import LIVE_ZSTD_LEVEL, LogSession
         s = LogSession(DT, {str(tmp_path)!r})
         s.start()
         print(s.proc.pid, flush=True)
@@ -329,7 +328,7 @@ def test_drops_are_counted_and_logged(tmp_path: Path) -> None:
 
 
 def test_not_a_log_is_refused(tmp_path: Path) -> None:
-    from models.errors import DataFormatError
+    from capstan.models.common.errors import DataFormatError
     bad = tmp_path / "x.mcap"
     bad.write_bytes(b"hello world, not mcap at all")
     with pytest.raises(DataFormatError):

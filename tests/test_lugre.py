@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.errors import ModelError
-from models.lugre import LuGreParams, lugre_force_series, simulate_lugre_unit
+from capstan.models.common.errors import ModelError
+from capstan.models.transmission.lugre import LuGreParams, lugre_force_series, simulate_lugre_unit
 
 P = LuGreParams(sigma0_Nm_rad=500.0, sigma1_Nms_rad=5.0, sigma2_Nms_rad=0.3, F_c_Nm=1.5, F_s_Nm=2.0,
                 v_s_rad_s=0.05)

@@ -16,7 +16,7 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Chunk, Footer, Message
 from mcap.stream_reader import StreamReader
 
-from controller.mcap_writer import MESSAGE_HEAD_BYTES, McapChunkWriter, McapWriteError, message_rows
+from capstan.controller.log.mcap_writer import MESSAGE_HEAD_BYTES, McapChunkWriter, McapWriteError, message_rows
 
 
 def _payloads(n: int, size: int, seed: int = 0) -> np.ndarray:

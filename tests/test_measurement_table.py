@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from models.errors import DataFormatError
-from tools.measurement_table import MeasurementTable, read_table, write_table
+from capstan.models.common.errors import DataFormatError
+from capstan.models.common.measurement_table import MeasurementTable, read_table, write_table
 
 
 def test_roundtrip_keeps_columns_and_sidecar(tmp_path):

@@ -3,7 +3,7 @@
 Plain Numba caching checks a cached function against its own file only, so a compiled
 caller keeps the old code of a callee edited in another module (numba issue #1833).
 The test builds a two-module package, runs it in fresh processes before and after
-editing the callee, with and without :func:`models.numba_cache.configure_cache`.
+editing the callee, with and without :func:`capstan.models.common.numba_cache.configure_cache`.
 """
 
 from __future__ import annotations
@@ -14,9 +14,8 @@ import sys
 import textwrap
 from pathlib import Path
 
-from models import numba_cache
+from capstan.models.common import numba_cache
 
-REPO = Path(__file__).resolve().parent.parent
 
 _CALLER = """
 from numba import njit
@@ -35,13 +34,13 @@ def _callee(v: float) -> str:
 def _run(tmp: Path, configured: bool) -> float:
     """A fresh interpreter: optionally key the cache by libpkg's sources, call outer()."""
     if configured:
-        pre = (f"from models.numba_cache import configure_cache\n"
+        pre = (f"from capstan.models.common.numba_cache import configure_cache\n"
                f"configure_cache(roots=[{str(tmp / 'pkg' / 'libpkg')!r}], "
                f"base={str(tmp / 'keyed')!r})\n")
     else:
         pre = ""
     code = pre + "from libpkg.outer import outer\nprint(outer())\n"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp / "pkg"), str(REPO)]),
+    env = dict(os.environ, PYTHONPATH=str(tmp / "pkg"),
                NUMBA_CACHE_DIR=str(tmp / "plain"))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=120, check=True)

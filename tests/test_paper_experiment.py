@@ -18,10 +18,10 @@ from typing import Any
 
 import pytest
 
-from models.errors import ConfigError
-from tools.paper_experiment import FIGURES, parse_only
-from tools.paper_recommend import recommend
-from tools.paper_report import fmt, table
+from capstan.models.common.errors import ConfigError
+from capstan.tools.experiments.paper.experiment import FIGURES, parse_only
+from capstan.tools.experiments.paper.recommend import recommend
+from capstan.tools.experiments.paper.report import fmt, table
 
 MU = 0.052
 SIGMA_TORQUE_NM = 0.02          # models.rig.SensorNoise().torque_Nm
@@ -90,8 +90,8 @@ def test_a_failing_figure_is_reported_and_the_others_still_written(tmp_path: Pat
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     import argparse
 
-    from models.errors import OperatingRangeError
-    from tools import paper_experiment as pe
+    from capstan.models.common.errors import OperatingRangeError
+    from capstan.tools.experiments.paper import experiment as pe
 
     def slack(_d: Path) -> dict[str, Any]:
         raise OperatingRangeError("cable slack on the lower cable")
@@ -119,7 +119,7 @@ def test_a_failing_figure_is_reported_and_the_others_still_written(tmp_path: Pat
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, Path, dict[str, Any], str]:
-    from tools.cli import main
+    from capstan.tools.cli import main
 
     out = tmp_path_factory.mktemp("paper")
     rc = main(["experiment", "paper", "--out", str(out), "--quick"])

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from models.errors import ModelError
-from models.pretension import (
+from capstan.models.common.errors import ModelError
+from capstan.models.transmission.pretension import (
     boundary_pretension_from_load_cell_sums,
     boundary_pretension_from_load_cells,
     pretension_field,
@@ -16,7 +16,7 @@ from models.pretension import (
     tension_at,
     uniform_segment_tensions_N,
 )
-from models.routing import Routing
+from capstan.models.transmission.routing import Routing
 
 MU = 0.052
 L = 1.379

@@ -12,9 +12,9 @@ import textwrap
 
 import pytest
 
-from controller import realtime
-from controller.realtime import RealtimeMode, RealtimeSettings
-from models.errors import RealtimeError
+from capstan.controller.runtime import realtime
+from capstan.controller.runtime.realtime import RealtimeMode, RealtimeSettings
+from capstan.models.common.errors import RealtimeError
 
 
 def _deny_sched(pid: int, policy: int, param: object) -> None:
@@ -63,7 +63,7 @@ def test_all_permitted() -> None:
 
 
 def test_warn_mode_logs_each_failed_step_once_and_continues(caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.WARNING, logger="controller.realtime")
+    caplog.set_level(logging.WARNING, logger="capstan.controller.runtime.realtime")
     s = RealtimeSettings(mode=RealtimeMode.WARN)
     rep = realtime.prepare(s, mlockall=lambda f: errno.ENOMEM, setscheduler=_deny_sched)
     realtime.apply(s, rep, setscheduler=_deny_sched, setaffinity=_ok_aff)
@@ -104,9 +104,9 @@ def test_off_mode_touches_no_scheduling() -> None:
 
 _CHILD = textwrap.dedent("""
     import os, sys
-    from controller import realtime
-    from controller.realtime import RealtimeMode, RealtimeSettings
-    from models.errors import RealtimeError
+    from capstan.controller.runtime import realtime
+    from capstan.controller.runtime.realtime import RealtimeMode, RealtimeSettings
+    from capstan.models.common.errors import RealtimeError
     if os.getuid() == 0:
         os.setgroups([]); os.setgid(65534); os.setuid(65534)   # an unprivileged user
     mode = RealtimeMode.parse(sys.argv[1])
@@ -142,7 +142,7 @@ def test_real_unprivileged_process(mode: str) -> None:
 def test_real_privileged_process_gets_fifo_and_mlock() -> None:
     if os.getuid() != 0:
         pytest.skip("needs CAP_SYS_NICE")
-    code = ("from controller import realtime as r; import os;"
+    code = ("from capstan.controller.runtime import realtime as r; import os;"
             "s = r.RealtimeSettings(mode=r.RealtimeMode.ENFORCE, priority=10, cpus=(0,));"
             "rep = r.apply(s, r.prepare(s));"
             "print(rep.fifo, rep.mlock, os.sched_getscheduler(0) == os.SCHED_FIFO | os.SCHED_RESET_ON_FORK,"

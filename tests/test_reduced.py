@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 from numba import njit
 
-from models.errors import ConfigError, ModelError
-from models.pretension import pretension_field, uniform_segment_tensions_N
-from models.reduced import (
+from capstan.models.common.errors import ConfigError, ModelError
+from capstan.models.transmission.pretension import pretension_field, uniform_segment_tensions_N
+from capstan.models.transmission.reduced import (
     ReducedModel,
     StribeckParams,
     eq19_friction_torque_Nm,
     nominal_friction_torque_Nm,
     stribeck_friction_Nm,
 )
-from models.routing import Routing
+from capstan.models.transmission.routing import Routing
 
 MU, L, R = 0.052, 1.379, 0.04
 COULOMB = StribeckParams(zeta_s=1.0, zeta_c=1.0, eta_s_rad_s=0.05, alpha_s_rad=2000.0, b_vis_Nms_rad=0.0)
@@ -57,7 +57,7 @@ def test_nominal_friction_uniform_symmetric_closed_form() -> None:
 
 
 def test_distributed_n1_steady_sliding_friction_equals_eq19() -> None:
-    dist = pytest.importorskip("models.distributed")
+    dist = pytest.importorskip("capstan.models.distributed.model")
     routing = Routing.uniform(L, 3.0)
     f = pretension_field(routing, MU, 150.0, 150.0)
     tens = uniform_segment_tensions_N(f.T0_eq_N, 1)

@@ -11,14 +11,14 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.daemon_log import newest_log, open_session
-from controller.log_reader import read_log
-from controller.mcap_log import McapLog
-from controller.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
-from tools.cli import main
-from tools.replay_cmd import merge_config, replay_records
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.runtime.session_log import newest_log, open_session
+from capstan.controller.log.reader import read_log
+from capstan.controller.log.mcap_log import McapLog
+from capstan.controller.law.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
+from capstan.tools.cli import main
+from capstan.tools.offline.replay import merge_config, replay_records
 
 CONFIG = {"controller": {"feedback": {"kp": 4.0, "kd_s": 0.04},
                          "feedforward": {"gain": 0.8}},
@@ -203,7 +203,7 @@ def test_merge_config_is_deep_and_does_not_mutate() -> None:
 
 def test_progress_bar_draws_on_its_stream() -> None:
     import io
-    from tools.log_progress import Progress
+    from capstan.tools.offline.progress import Progress
     buf = io.StringIO()
     bar = Progress("replay", stream=buf)
     bar.update(0, 200)

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.rig import SensorNoise, SimulatedRig
+from capstan.models.common.errors import ConfigError
+from capstan.models.plant.rig import SensorNoise, SimulatedRig
 
 LINK_PLANT = {
     "transmission": {"n_nodes": 4},

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from models.errors import ConfigError
-from models.routing import Routing
+from capstan.models.common.errors import ConfigError
+from capstan.models.transmission.routing import Routing
 
 # a two-bend routing with a straight middle part and a non-zero start sample (as in formats.md)
 MULTI_S = [0.057, 0.2, 0.35, 0.5, 0.7, 0.9, 1.05, 1.2, 1.379]

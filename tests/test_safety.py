@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from controller.config import ControllerConfig
-from controller.core import Controller
-from controller.records import FaultBits, RECORD_DTYPE, fault_names
-from models.errors import ConfigError
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.records import FaultBits, RECORD_DTYPE, fault_names
+from capstan.models.common.errors import ConfigError
 
 DT = 1e-3
 R_IN = 0.04
@@ -199,7 +199,7 @@ def test_config_round_trip():
 def test_example_config_file_is_valid_and_matches_the_defaults():
     from pathlib import Path
 
-    from models.config_tools import load_yaml
+    from capstan.models.common.config_tools import load_yaml
 
     path = Path(__file__).resolve().parents[1] / "config" / "controller.yaml"
     cfg = ControllerConfig.from_mapping(load_yaml(path)["controller"])

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.sd_notify import SdNotifier
+from capstan.controller.runtime.sd_notify import SdNotifier
 
 
 def _server(addr: str | bytes) -> socket.socket:

@@ -8,9 +8,9 @@ import can
 import pytest
 
 from cia402_helpers import CAPSTAN_EDS, NODE_ID, VENDOR_EDS
-from drivers.can_unix import UnixSocketBus
-from drivers.cia402 import State402
-from drivers.sim_drive import SimDrive
+from capstan.drivers.can_unix import UnixSocketBus
+from capstan.drivers.canopen.cia402 import State402
+from capstan.drivers.sim.drive import SimDrive
 
 SDO_RX, SDO_TX, EMCY, HB = 0x600 + NODE_ID, 0x580 + NODE_ID, 0x80 + NODE_ID, 0x700 + NODE_ID
 

@@ -11,9 +11,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.loadcell_protocol import LoadCellParser, parse_frame
-from drivers.sim_serial import PtyPair, SerialFault, SimLoadCellAmp, SimMode, SimXsens, open_pty_pair
-from drivers.xsens_protocol import Mid, XbusParser, build_message, parse_mtdata2
+from capstan.drivers.serial.loadcell_protocol import LoadCellParser, parse_frame
+from capstan.drivers.sim.serial_devices import PtyPair, SerialFault, SimLoadCellAmp, SimMode, SimXsens, open_pty_pair
+from capstan.drivers.serial.xsens_protocol import Mid, XbusParser, build_message, parse_mtdata2
 
 
 @pytest.fixture

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import yaml
 
-from tools.cli import main
-from tools.measurement_table import read_table
+from capstan.tools.cli import main
+from capstan.models.common.measurement_table import read_table
 
 SCENARIO = {
     "name": "unit",

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from controller.daemon_cmd import EXIT_FAULT
-from controller.daemon_config import DaemonConfig
+from capstan.tools.commands.run import EXIT_FAULT
+from capstan.controller.runtime.config import DaemonConfig
 
 REPO = Path(__file__).resolve().parent.parent
 UNIT = REPO / "config" / "systemd" / "capstan.service"

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from controller.timing import DeadlineSleeper, LoopStats, process_cpu_s
+from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, process_cpu_s
 
 MS = 1_000_000
 

@@ -9,14 +9,14 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.interfaces import Imu
-from drivers.sim_serial import PtyPair, SerialFault, SimXsens, open_pty_pair
-from drivers.xsens import (
+from capstan.drivers.interfaces import Imu
+from capstan.drivers.sim.serial_devices import PtyPair, SerialFault, SimXsens, open_pty_pair
+from capstan.drivers.serial.xsens import (
     XsensConfig, XsensImu, euler_deg_from_quaternion, joint_from_mtdata2, quaternion_from_euler_deg,
     twist_angle_rad, wrap_pi,
 )
-from drivers.xsens_protocol import Mid, MtData2, build_message, encode_output_configuration
-from models.errors import ConfigError, DeviceTimeoutError, ProtocolError
+from capstan.drivers.serial.xsens_protocol import Mid, MtData2, build_message, encode_output_configuration
+from capstan.models.common.errors import ConfigError, DeviceTimeoutError, ProtocolError
 
 RATE_HZ = 400
 
@@ -274,9 +274,9 @@ def test_bad_config_names_key(bad: dict, key: str) -> None:
 def test_example_config_file_builds_both_drivers() -> None:
     from pathlib import Path
 
-    from drivers import registry
-    from drivers.loadcell import SerialLoadCells
-    from models.config_tools import load_yaml
+    from capstan.drivers import registry
+    from capstan.drivers.serial.loadcell import SerialLoadCells
+    from capstan.models.common.config_tools import load_yaml
 
     cfg = load_yaml(Path(__file__).parents[1] / "config" / "serial_devices.yaml")
     imu = registry.create("imu", cfg["imu"])

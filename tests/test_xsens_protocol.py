@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drivers.xsens_protocol import (
+from capstan.drivers.serial.xsens_protocol import (
     Mid, Precision, XbusParser, Xdi, build_message, build_mtdata2_item, checksum,
     decode_output_configuration, decode_values, encode_output_configuration, encode_values,
     parse_mtdata2,
 )
-from models.errors import ProtocolError
+from capstan.models.common.errors import ProtocolError
 
 GOLDEN = yaml.safe_load((Path(__file__).parent / "data" / "xsens_mti300_golden.yaml").read_text())
 

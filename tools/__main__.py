@@ -1,3 +1,3 @@
-from tools.cli import main
+from capstan.tools.cli import main
 
 raise SystemExit(main())

@@ -7,7 +7,7 @@ does not compile Numba code. Each command module provides::
     def add_arguments(parser: argparse.ArgumentParser) -> None
     def run(args: argparse.Namespace) -> int     # exit code
 
-Library errors (:class:`models.errors.CapstanError`) become a one-line message on
+Library errors (:class:`capstan.models.common.errors.CapstanError`) become a one-line message on
 stderr and exit code 2; anything else is a bug and keeps its traceback.
 """
 
@@ -19,19 +19,20 @@ import logging
 import sys
 from typing import Sequence
 
-from models.errors import CapstanError
+from capstan.models.common.errors import CapstanError
 
 #: command name -> module implementing it
 COMMANDS: dict[str, str] = {
-    "simulate": "tools.simulate_cmd",
-    "run": "controller.daemon_cmd",
-    "hil": "tools.hil_cmd",
-    "replay": "tools.replay_cmd",
-    "export": "tools.export_cmd",
-    "decode": "tools.decode_cmd",
-    "identify": "tools.identify_cmd",
-    "close": "tools.close_cmd",
-    "experiment": "tools.experiment_cmd",
+    "simulate": "capstan.tools.commands.simulate",
+    "run": "capstan.tools.commands.run",
+    "hil": "capstan.tools.commands.hil",
+    "replay": "capstan.tools.commands.replay",
+    "export": "capstan.tools.commands.export",
+    "decode": "capstan.tools.commands.decode",
+    "identify": "capstan.tools.commands.identify",
+    "close": "capstan.tools.commands.close",
+    "experiment": "capstan.tools.commands.experiment",
+    "config": "capstan.tools.commands.config",
 }
 
 _SUMMARIES: dict[str, str] = {
@@ -44,6 +45,7 @@ _SUMMARIES: dict[str, str] = {
     "identify": "fit model parameters to measured runs",
     "close": "close the model loop: residual -> missing effect -> before/after report",
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
+    "config": "list or print the shipped configuration files",
 }
 
 

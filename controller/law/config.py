@@ -1,0 +1,341 @@
+"""The frozen configuration of the controller (the ``controller:`` YAML section).
+
+Every key, its unit and default (``config/controller.yaml`` is the documented example)::
+
+    controller:
+      dt_s: 0.001                    # control period [s]
+      torque_loop: ldo               # ldo (eqs 26-28) | pid (PID on the tau_in error)
+      plant:                         # nominal plant P(s) = K_c / (J_m s^2 + B_m s + K_c), eq (26)
+        stiffness_Nm_rad: 240.0      # K_c
+        motor_inertia_kg_m2: 0.73    # J_m
+        motor_damping_Nms_rad: 0.5   # B_m
+        r_in_m: 0.04                 # input pulley radius: tau_in = r_in (T_up_in - T_lo_in)
+        r_out_m: 0.04                # output pulley radius
+      ldo:
+        q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
+      feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
+                                     # (the derivative acts on the measured tau_in only)
+        kp: 5.0                      # proportional gain on the tau_in error [Nm/Nm]
+        kd_s: 0.05                   # derivative gain [Nm s/Nm]
+        derivative_cutoff_hz: 40.0   # first-order filter of the derivative
+        ki_1_s: 20.0                 # integral gain, PID loop only [Nm/(Nm s)]
+        integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
+      filters:
+        tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
+      gravity:
+        enabled: true
+        m_g_l_Nm: 3.78               # tau_g = m_g_l sin(q_out), models.link convention
+      feedforward:                   # reduced-model friction feedforward, eq (21)
+        enabled: true
+        placement: reference         # reference: tau_in_des = tau_g + tau_fc | motor: eq (28) as printed
+        gain: 1.0                    # fraction of the model friction compensated
+        mu: 0.052
+        routing: {length_m: 1.379, theta_rad: 3.0}   # any form of models.routing
+        pretension: measured         # measured (mean of the four load cells) | fixed
+        T0_fixed_N: 150.0            # used when pretension is fixed
+        zeta_s: 1.2                  # static/sticky factor (>= zeta_c)
+        zeta_c: 1.0                  # Coulomb factor
+        eta_s_rad_s: 0.05            # Stribeck velocity
+        alpha_s_rad: 50.0            # tanh steepness [s/rad]
+        b_vis_Nms_rad: 0.0           # viscous term
+        effects: []                  # learned effects added to the friction torque: the fragment
+                                     # of `capstan close` (format models/closure/effects_runtime.py,
+                                     # evaluation controller/law/learned_effects.py)
+        effects_shape: {alpha_s_rad: 50.0, eta_s_rad_s: 0.05, zeta_s: 1.2, v_rest_rad_s: 0.005}
+                                     # s(dq) of the baseline the effects were fitted on and the
+                                     # rest threshold of their dwell signal; absent keys: the
+                                     # feedforward's own shape, v_rest 0.005 rad/s
+      safety:
+        tau_max_Nm: 15.0             # command clamp (saturation, not a fault)
+        dtau_max_Nm_s: 2000.0        # command rate clamp
+        tau_fault_Nm: 60.0           # raw demand beyond this latches TORQUE_LIMIT (keep above
+                                     # (1 + kp) * 2 * tau_fc: the feedforward flips sign at reversals)
+        dtau_fault_Nm_s: 60000.0     # raw demand step beyond this x dt latches TORQUE_RATE_LIMIT
+        imu_timeout_s: 0.010         # STALE_IMU when t_s - imu_t_s exceeds this
+        loadcell_timeout_s: 0.005
+        motor_timeout_s: 0.005
+
+All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
+(with the routing as its curvature profile) so a log stores the exact config used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from enum import IntEnum
+from typing import Any, Mapping
+
+from capstan.controller.law.learned_effects import check_entries
+from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
+from capstan.models.common.errors import ConfigError
+
+
+class TorqueLoop(IntEnum):
+    """The low-level torque controller."""
+
+    PID = 0
+    LDO = 1
+
+
+class Placement(IntEnum):
+    """Where the friction feedforward enters."""
+
+    REFERENCE = 0   #: tau_in_des = (r_in/r_out)(tau_g + tau_fc)
+    MOTOR = 1       #: added to tau_m, eq (28) as printed
+
+
+class PretensionSource(IntEnum):
+    """Where the friction magnitude's pretension comes from."""
+
+    MEASURED = 0
+    FIXED = 1
+
+
+@dataclass(frozen=True)
+class PlantNominal:
+    """Nominal plant of eq (26)."""
+
+    stiffness_Nm_rad: float = 240.0
+    motor_inertia_kg_m2: float = 0.73
+    motor_damping_Nms_rad: float = 0.5
+    r_in_m: float = 0.04
+    r_out_m: float = 0.04
+
+
+@dataclass(frozen=True)
+class FeedbackGains:
+    """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
+
+    kp: float = 5.0
+    kd_s: float = 0.05
+    derivative_cutoff_hz: float = 40.0
+    ki_1_s: float = 20.0
+    integral_limit_Nm: float = 5.0
+
+
+@dataclass(frozen=True)
+class FeedforwardConfig:
+    """Reduced-model friction feedforward (eq 21) with the routing as a curvature profile.
+
+    :ivar routing_profile: ``((s_m, kappa_1_per_m), ...)`` knots of the routing.
+    :ivar routing_length_m: routing length [m].
+    :ivar effects: learned effect entries (``capstan close`` fragment), validated.
+    :ivar effects_shape: ``(alpha_s_rad, eta_s_rad_s, zeta_s, v_rest_rad_s)`` of the effects.
+    """
+
+    enabled: bool = True
+    placement: Placement = Placement.REFERENCE
+    gain: float = 1.0
+    mu: float = 0.052
+    routing_profile: tuple[tuple[float, float], ...] = ((0.0, 3.0 / 1.379), (1.379, 3.0 / 1.379))
+    routing_length_m: float = 1.379
+    pretension: PretensionSource = PretensionSource.MEASURED
+    T0_fixed_N: float = 150.0
+    zeta_s: float = 1.2
+    zeta_c: float = 1.0
+    eta_s_rad_s: float = 0.05
+    alpha_s_rad: float = 50.0
+    b_vis_Nms_rad: float = 0.0
+    effects: tuple[dict[str, Any], ...] = ()
+    effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
+
+    def routing(self) -> Any:
+        """The :class:`capstan.models.transmission.routing.Routing` of this feedforward."""
+        from capstan.models.transmission.routing import Routing
+        s = [p[0] for p in self.routing_profile]
+        k = [p[1] for p in self.routing_profile]
+        return Routing.from_curvature_samples(s, k, self.routing_length_m)
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Limits and timeouts of the safety stage."""
+
+    tau_max_Nm: float = 15.0
+    dtau_max_Nm_s: float = 2000.0
+    tau_fault_Nm: float = 60.0
+    dtau_fault_Nm_s: float = 60000.0
+    imu_timeout_s: float = 0.010
+    loadcell_timeout_s: float = 0.005
+    motor_timeout_s: float = 0.005
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Frozen controller configuration; build with :meth:`from_mapping`."""
+
+    dt_s: float = 0.001
+    torque_loop: TorqueLoop = TorqueLoop.LDO
+    plant: PlantNominal = field(default_factory=PlantNominal)
+    q_cutoff_hz: float = 10.0
+    feedback: FeedbackGains = field(default_factory=FeedbackGains)
+    tau_in_cutoff_hz: float = 150.0
+    gravity_enabled: bool = True
+    m_g_l_Nm: float = 3.78
+    feedforward: FeedforwardConfig = field(default_factory=FeedforwardConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+
+    # ------------------------------------------------------------------ parsing
+    @staticmethod
+    def from_mapping(cfg: Mapping[str, Any], prefix: str = "controller") -> "ControllerConfig":
+        """Validate and freeze a ``controller:`` mapping; absent keys take the defaults.
+
+        :raises ConfigError: naming the dotted key and the reason (unknown key, wrong
+            type, out of range, inconsistent limits).
+        """
+        if not isinstance(cfg, Mapping):
+            raise ConfigError(prefix, f"must be a mapping, got {type(cfg).__name__}")
+        reject_unknown(cfg, {"dt_s", "torque_loop", "plant", "ldo", "feedback", "filters", "gravity",
+                             "feedforward", "safety"}, prefix)
+        d = ControllerConfig()
+        dt = get_float(cfg, "dt_s", prefix, d.dt_s, min_value=1e-5, max_value=0.1)
+        nyq = 0.5 / dt
+        loop = TorqueLoop[get_choice(cfg, "torque_loop", ("ldo", "pid"), prefix, "ldo").upper()]
+
+        p = f"{prefix}.plant"
+        c = section(cfg, "plant", prefix, required=False)
+        reject_unknown(c, {"stiffness_Nm_rad", "motor_inertia_kg_m2", "motor_damping_Nms_rad", "r_in_m", "r_out_m"}, p)
+        plant = PlantNominal(
+            get_float(c, "stiffness_Nm_rad", p, d.plant.stiffness_Nm_rad, min_value=0.0, min_exclusive=True),
+            get_float(c, "motor_inertia_kg_m2", p, d.plant.motor_inertia_kg_m2, min_value=0.0, min_exclusive=True),
+            get_float(c, "motor_damping_Nms_rad", p, d.plant.motor_damping_Nms_rad, min_value=0.0),
+            get_float(c, "r_in_m", p, d.plant.r_in_m, min_value=0.0, min_exclusive=True),
+            get_float(c, "r_out_m", p, d.plant.r_out_m, min_value=0.0, min_exclusive=True))
+
+        p = f"{prefix}.ldo"
+        c = section(cfg, "ldo", prefix, required=False)
+        reject_unknown(c, {"q_cutoff_hz"}, p)
+        q_fc = get_float(c, "q_cutoff_hz", p, d.q_cutoff_hz, min_value=0.0, min_exclusive=True,
+                         max_value=0.25 * nyq)
+
+        p = f"{prefix}.feedback"
+        c = section(cfg, "feedback", prefix, required=False)
+        reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm"}, p)
+        fd = d.feedback
+        fb = FeedbackGains(
+            get_float(c, "kp", p, fd.kp, min_value=0.0),
+            get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
+            get_float(c, "derivative_cutoff_hz", p, fd.derivative_cutoff_hz, min_value=0.0,
+                      min_exclusive=True, max_value=0.45 * nyq),
+            get_float(c, "ki_1_s", p, fd.ki_1_s, min_value=0.0),
+            get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0))
+
+        p = f"{prefix}.filters"
+        c = section(cfg, "filters", prefix, required=False)
+        reject_unknown(c, {"tau_in_cutoff_hz"}, p)
+        tau_fc_hz = get_float(c, "tau_in_cutoff_hz", p, d.tau_in_cutoff_hz, min_value=0.0, max_value=0.45 * nyq)
+
+        p = f"{prefix}.gravity"
+        c = section(cfg, "gravity", prefix, required=False)
+        reject_unknown(c, {"enabled", "m_g_l_Nm"}, p)
+        g_on = get_bool(c, "enabled", p, d.gravity_enabled)
+        mgl = get_float(c, "m_g_l_Nm", p, d.m_g_l_Nm, min_value=0.0)
+
+        ff = _feedforward_from_mapping(section(cfg, "feedforward", prefix, required=False), f"{prefix}.feedforward")
+        safety = _safety_from_mapping(section(cfg, "safety", prefix, required=False), f"{prefix}.safety")
+        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The YAML structure of :meth:`from_mapping` with every value explicit, such
+        that ``from_mapping(to_mapping())`` reproduces this config exactly."""
+        ff = self.feedforward
+        return {
+            "dt_s": self.dt_s,
+            "torque_loop": self.torque_loop.name.lower(),
+            "plant": asdict(self.plant),
+            "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
+            "feedback": asdict(self.feedback),
+            "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz},
+            "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
+            "feedforward": {
+                "enabled": ff.enabled, "placement": ff.placement.name.lower(), "gain": ff.gain,
+                "mu": ff.mu,
+                "routing": {"curvature_profile": [list(p) for p in ff.routing_profile],
+                            "length_m": ff.routing_length_m},
+                "pretension": ff.pretension.name.lower(), "T0_fixed_N": ff.T0_fixed_N,
+                "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
+                "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
+                "effects": [dict(e) for e in ff.effects],
+                "effects_shape": dict(zip(_EFFECTS_SHAPE_KEYS, ff.effects_shape)),
+            },
+            "safety": asdict(self.safety),
+        }
+
+
+#: keys of ``controller.feedforward.effects_shape``, in the order of ``FeedforwardConfig.effects_shape``
+_EFFECTS_SHAPE_KEYS = ("alpha_s_rad", "eta_s_rad_s", "zeta_s", "v_rest_rad_s")
+
+
+def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig:
+    """Parse ``controller.feedforward``.
+
+    :raises ConfigError: naming the key.
+    """
+    from capstan.models.transmission.routing import Routing
+
+    reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
+                       "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
+                       "effects", "effects_shape"}, p)
+    d = FeedforwardConfig()
+    if "routing" in c:
+        routing = Routing.from_mapping(section(c, "routing", p), f"{p}.routing")
+        s_m, k = routing.curvature_profile()
+        profile = tuple((float(a), float(b)) for a, b in zip(s_m, k))
+        length = float(routing.length_m)
+    else:
+        profile, length = d.routing_profile, d.routing_length_m
+    zeta_c = get_float(c, "zeta_c", p, d.zeta_c, min_value=0.0)
+    zeta_s = get_float(c, "zeta_s", p, d.zeta_s, min_value=0.0)
+    if zeta_s < zeta_c:
+        raise ConfigError(f"{p}.zeta_s", f"must be >= zeta_c = {zeta_c}, got {zeta_s}")
+    eta_s = get_float(c, "eta_s_rad_s", p, d.eta_s_rad_s, min_value=0.0, min_exclusive=True)
+    alpha_s = get_float(c, "alpha_s_rad", p, d.alpha_s_rad, min_value=0.0, min_exclusive=True)
+    effects = check_entries(c.get("effects", []), f"{p}.effects")
+    es = section(c, "effects_shape", p, required=False)
+    ep = f"{p}.effects_shape"
+    reject_unknown(es, set(_EFFECTS_SHAPE_KEYS), ep)
+    shape = (get_float(es, "alpha_s_rad", ep, alpha_s, min_value=0.0, min_exclusive=True),
+             get_float(es, "eta_s_rad_s", ep, eta_s, min_value=0.0, min_exclusive=True),
+             get_float(es, "zeta_s", ep, zeta_s),          # a fitted shape may dip below 0
+             get_float(es, "v_rest_rad_s", ep, d.effects_shape[3], min_value=0.0, min_exclusive=True))
+    return FeedforwardConfig(
+        enabled=get_bool(c, "enabled", p, d.enabled),
+        placement=Placement[get_choice(c, "placement", ("reference", "motor"), p, "reference").upper()],
+        gain=get_float(c, "gain", p, d.gain, min_value=0.0, max_value=1.5),
+        mu=get_float(c, "mu", p, d.mu, min_value=0.0, max_value=1.0),
+        routing_profile=profile, routing_length_m=length,
+        pretension=PretensionSource[get_choice(c, "pretension", ("measured", "fixed"), p, "measured").upper()],
+        T0_fixed_N=get_float(c, "T0_fixed_N", p, d.T0_fixed_N, min_value=0.0),
+        zeta_s=zeta_s, zeta_c=zeta_c,
+        eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
+        b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),
+        effects=effects, effects_shape=shape,
+    )
+
+
+def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
+    """Parse ``controller.safety``.
+
+    :raises ConfigError: naming the key (also when a fault limit is below its clamp).
+    """
+    reject_unknown(c, {"tau_max_Nm", "dtau_max_Nm_s", "tau_fault_Nm", "dtau_fault_Nm_s", "imu_timeout_s",
+                       "loadcell_timeout_s", "motor_timeout_s"}, p)
+    d = SafetyConfig()
+    s = SafetyConfig(
+        get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True),
+        get_float(c, "dtau_max_Nm_s", p, d.dtau_max_Nm_s, min_value=0.0, min_exclusive=True),
+        get_float(c, "tau_fault_Nm", p, d.tau_fault_Nm, min_value=0.0, min_exclusive=True),
+        get_float(c, "dtau_fault_Nm_s", p, d.dtau_fault_Nm_s, min_value=0.0, min_exclusive=True),
+        get_float(c, "imu_timeout_s", p, d.imu_timeout_s, min_value=0.0, min_exclusive=True),
+        get_float(c, "loadcell_timeout_s", p, d.loadcell_timeout_s, min_value=0.0, min_exclusive=True),
+        get_float(c, "motor_timeout_s", p, d.motor_timeout_s, min_value=0.0, min_exclusive=True),
+    )
+    if s.tau_fault_Nm < s.tau_max_Nm:
+        raise ConfigError(f"{p}.tau_fault_Nm", f"must be >= tau_max_Nm = {s.tau_max_Nm}, got {s.tau_fault_Nm}")
+    if s.dtau_fault_Nm_s < s.dtau_max_Nm_s:
+        raise ConfigError(f"{p}.dtau_fault_Nm_s",
+                          f"must be >= dtau_max_Nm_s = {s.dtau_max_Nm_s}, got {s.dtau_fault_Nm_s}")
+    if not math.isfinite(s.tau_max_Nm):
+        raise ConfigError(f"{p}.tau_max_Nm", "must be finite")
+    return s

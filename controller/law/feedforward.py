@@ -1,0 +1,50 @@
+"""Friction feedforward of the reduced transmission model (paper eqs 19, 21, 25) and the
+gravity model of the link.
+
+Friction magnitude. With the paper's symmetric approximation (§4.4.1) the boundary
+pretension is the mean of the four fixture tensions, ``T0 = mean(T_lc)``; with equal
+ends the averaged pretension of eq (25) is linear in it, ``T0_eq = c(routing, mu) T0``
+(``c = 2 exp(-mu theta / 2)`` on a uniform routing), and so is the nominal friction
+torque of eq (19), ``tau_fc = mu theta T0_eq r_out``. The factor
+``tau_fc / T0`` [Nm/N] is therefore computed once from the routing at config time
+(:func:`friction_torque_per_N`) and the step scales it by the live pretension estimate.
+
+Velocity shape (eq 21), evaluated with the IMU's ``dq_out`` (the paper's choice: the
+output velocity gives a Coulomb-like, less hysteretic friction curve, Fig. 8f)::
+
+    tau_fc_hat = tanh(alpha dq) [zeta_c + (zeta_s - zeta_c) exp(-(dq/eta_s)^2)] tau_fc + b_vis dq
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from capstan.controller.law.config import FeedforwardConfig
+from capstan.models.transmission.pretension import pretension_field
+from capstan.models.transmission.reduced import nominal_friction_torque_Nm, stribeck_friction_Nm
+
+
+def friction_torque_per_N(ff: FeedforwardConfig, r_out_m: float) -> float:
+    """Nominal friction torque per Newton of boundary pretension [Nm/N] for ``ff``'s routing.
+
+    :raises ModelError: if the pretension field cannot be evaluated.
+    """
+    routing = ff.routing()
+    t_ref = 100.0
+    t0_eq = pretension_field(routing, ff.mu, t_ref, t_ref).T0_eq_N
+    return nominal_friction_torque_Nm(t0_eq, ff.mu, routing.theta_total_rad, r_out_m) / t_ref
+
+
+@njit(cache=True)
+def friction_feedforward_Nm(dq_out_rad_s: float, tau_fc_Nm: float, zeta_s: float, zeta_c: float,
+                            eta_s_rad_s: float, alpha_s_rad: float, b_vis_Nms_rad: float) -> float:
+    """Feedforward friction torque [Nm] (eq 21) at the output rate ``dq_out_rad_s``."""
+    return stribeck_friction_Nm(dq_out_rad_s, tau_fc_Nm, zeta_s, zeta_c, eta_s_rad_s, alpha_s_rad,
+                                b_vis_Nms_rad)
+
+
+def friction_curve_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardConfig) -> np.ndarray:
+    """Vectorised eq (21) for plots and tests [Nm]."""
+    return np.array([friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c, ff.eta_s_rad_s,
+                                             ff.alpha_s_rad, ff.b_vis_Nms_rad) for v in np.ravel(dq_rad_s)])

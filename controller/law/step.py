@@ -1,0 +1,198 @@
+"""The composed 1 kHz control step: measurements -> LDO/PID + gravity + friction
+feedforward -> safety stage -> motor torque command.
+
+``control_step(cfg, st, rec)`` is a pure function of the flat config array ``cfg``
+(coefficients computed once in Python, :func:`capstan.controller.law.core.pack_config`), the flat
+state array ``st`` and the measurement fields of the record ``rec`` (shape (1,),
+:data:`capstan.controller.law.records.RECORD_DTYPE`); it writes the state, the record's controller
+fields and returns the safe command [Nm]. Allocation-free, ``@njit(cache=True)``.
+
+Control law (per cycle, ``k``)::
+
+    tau_in   = F[ r_in (T_up_in - T_lo_in) ]             F: 1st-order low-pass (load-cell noise)
+    T0       = mean of the four tensions                 pretension estimate (§4.4.1)
+    tau_g    = m_g_l sin(q_out)                          models.link.gravity_hold_torque_Nm
+    tau_fc   = gain * (eq21(dq_out; c_fc T0) + tau_e)    only when imu_new, held otherwise;
+                                                         tau_e: learned effects (controller.learned_effects)
+    tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
+    e        = tau_in_des - tau_in
+    C e      = kp e - D tau_in     derivative on the measurement only: the reference jumps
+                                   at 400 Hz (feedforward) and a derivative on it would kick
+    LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
+          d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
+    PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
+
+``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
+clamping and rate limiting do not wind the observer up.
+
+Signal conditioning, and why:
+
+* ``tau_in``: a first-order low-pass (default 150 Hz) on the load-cell difference. Q P^-1
+  has a high-frequency gain of ``w_c^2 J_m / K_c`` (12 at 10 Hz), so white load-cell noise
+  would reach the command amplified; the observer's ``tau_m`` input passes the same filter
+  so the two observer paths stay consistent.
+* ``q_out``: used as sampled (AHRS orientation, ~5e-4 rad noise: 2 mNm of gravity torque).
+* ``dq_out``: the gyro's rate of turn, not a differentiated angle, so no derivative filter;
+  its noise (~2e-3 rad/s) is far below the Stribeck velocity and the tanh width (1/alpha).
+  Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
+* pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
+  friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from capstan.controller.law.feedforward import friction_feedforward_Nm
+from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
+from capstan.controller.law.ldo import biquad_init, biquad_step, lowpass_step
+from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
+from capstan.models.transmission.link import gravity_hold_torque_Nm
+
+# ---------------------------------------------------------------- config array layout
+C_DT = 0
+C_LOOP_LDO = 1          # 1.0 = LDO, 0.0 = PID
+C_Q = 2                 # 5 coefficients b0 b1 b2 a1 a2 of Q(z)
+C_QP = 7                # 5 coefficients of Q P^-1 (z)
+C_F_ALPHA = 12          # tau_in low-pass pole (0 = off)
+C_KP = 13
+C_KD_B0 = 14
+C_KD_A1 = 15
+C_KI_DT = 16            # ki * dt
+C_I_LIM = 17
+C_G_ON = 18
+C_MGL = 19
+C_FF_ON = 20
+C_FF_MOTOR = 21         # 1.0 = placement motor, 0.0 = reference
+C_FF_GAIN = 22
+C_FF_NM_PER_N = 23      # nominal friction torque per N of pretension
+C_FF_FIXED = 24         # 1.0 = fixed pretension
+C_FF_T0_FIXED = 25
+C_ZETA_S = 26
+C_ZETA_C = 27
+C_ETA_S = 28
+C_ALPHA_S = 29
+C_B_VIS = 30
+C_R_IN = 31
+C_R_RATIO = 32          # r_in / r_out
+C_TAU_MAX = 33
+C_DTAU_MAX_STEP = 34    # dtau_max * dt
+C_TAU_FAULT = 35
+C_DTAU_FAULT_STEP = 36  # dtau_fault * dt
+C_IMU_TIMEOUT = 37
+C_LC_TIMEOUT = 38
+C_MOTOR_TIMEOUT = 39
+N_CFG = 40              # fixed part; the learned-effects block follows (controller.learned_effects)
+
+# ---------------------------------------------------------------- state array layout
+S_STARTED = 0           # 0 until the first cycle initialised the filters
+S_Q = 1                 # 2 biquad states: Q on F tau_m[k-1]
+S_QP = 3                # 2 biquad states: Q P^-1 on F tau_in
+S_F_TIN = 5             # low-pass state of tau_in
+S_F_TM = 6              # low-pass state of tau_m[k-1] (observer path)
+S_TIN_PREV = 7          # previous filtered tau_in (derivative on measurement)
+S_D = 8                 # filtered derivative output
+S_INT = 9               # integral term (PID) [Nm]
+S_CMD_PREV = 10         # command applied in the previous cycle [Nm]
+S_RAW_PREV = 11         # previous raw demand [Nm]
+S_FC_HELD = 12          # friction feedforward held between IMU samples [Nm]
+S_FAULT = 13            # latched fault bits (as float64, exact)
+S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
+N_STATE = S_FX + N_FX_STATE
+
+
+@njit(cache=True)
+def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
+    """One control cycle; returns the safe motor torque command [Nm] (0.0 when faulted)."""
+    r = rec[0]
+    bits = input_fault_bits(rec, cfg[C_IMU_TIMEOUT], cfg[C_LC_TIMEOUT], cfg[C_MOTOR_TIMEOUT])
+
+    # ---- measurements -> signals
+    tau_in_raw = cfg[C_R_IN] * (r.T_up_in_N - r.T_lo_in_N)
+    t0_meas = 0.25 * (r.T_up_in_N + r.T_up_out_N + r.T_lo_out_N + r.T_lo_in_N)
+    alpha = cfg[C_F_ALPHA]
+    if st[S_STARTED] == 0.0:
+        st[S_F_TIN] = tau_in_raw
+        st[S_F_TM] = st[S_CMD_PREV]
+        biquad_init(cfg, C_QP, st, S_QP, tau_in_raw)
+        biquad_init(cfg, C_Q, st, S_Q, st[S_CMD_PREV])
+        st[S_D] = 0.0
+        st[S_TIN_PREV] = tau_in_raw
+        st[S_INT] = 0.0
+        st[S_RAW_PREV] = math.nan
+        st[S_STARTED] = 1.0
+    tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
+
+    # ---- references
+    tau_g = gravity_hold_torque_Nm(cfg[C_MGL], r.q_out_rad) if cfg[C_G_ON] != 0.0 else 0.0
+    if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
+        t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
+        fc = friction_feedforward_Nm(r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C],
+                                     cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
+        if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
+            load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
+            fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
+        st[S_FC_HELD] = cfg[C_FF_GAIN] * fc
+    tau_fc = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
+    ff_motor = cfg[C_FF_MOTOR] != 0.0
+    tau_out_des = tau_g + r.tau_out_ref_Nm
+    if not ff_motor:
+        tau_out_des += tau_fc
+    tau_in_des = cfg[C_R_RATIO] * tau_out_des
+
+    # ---- feedback
+    e = tau_in_des - tau_in
+    deriv = -cfg[C_KD_A1] * st[S_D] - cfg[C_KD_B0] * (tau_in - st[S_TIN_PREV])
+    st[S_D] = deriv
+    st[S_TIN_PREV] = tau_in
+    fb = cfg[C_KP] * e + deriv
+
+    # ---- torque loop
+    d_hat = 0.0
+    if cfg[C_LOOP_LDO] != 0.0:
+        tm_f = lowpass_step(alpha, st, S_F_TM, st[S_CMD_PREV])
+        d_hat = -biquad_step(cfg, C_QP, st, S_QP, tau_in) + biquad_step(cfg, C_Q, st, S_Q, tm_f)
+        tau_raw = fb + tau_in_des + d_hat
+    else:
+        if st[S_FAULT] == 0.0:
+            lim = cfg[C_I_LIM]
+            st[S_INT] = min(max(st[S_INT] + cfg[C_KI_DT] * e, -lim), lim)
+        fb += st[S_INT]
+        tau_raw = fb + tau_in_des
+    if ff_motor:
+        tau_raw += tau_fc
+
+    # ---- safety stage
+    bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
+    st[S_RAW_PREV] = tau_raw
+    latched = int(st[S_FAULT]) | bits
+    st[S_FAULT] = float(latched)
+    if latched != 0:
+        cmd = 0.0
+    else:
+        cmd = limit_command_Nm(tau_raw, st[S_CMD_PREV], cfg[C_TAU_MAX], cfg[C_DTAU_MAX_STEP])
+    st[S_CMD_PREV] = cmd
+
+    # ---- record
+    r.tau_in_Nm = tau_in
+    r.T0_meas_N = t0_meas
+    r.tau_g_Nm = tau_g
+    r.tau_fc_Nm = tau_fc
+    r.tau_in_des_Nm = tau_in_des
+    r.err_Nm = e
+    r.pd_Nm = fb
+    r.d_hat_Nm = d_hat
+    r.tau_m_raw_Nm = tau_raw
+    r.tau_m_cmd_Nm = cmd
+    r.fault_bits = latched
+    return cmd
+
+
+@njit(cache=True)
+def reset_state(st: np.ndarray) -> None:
+    """Zero the state: filters re-initialise on the next cycle, fault latch cleared."""
+    for i in range(st.shape[0]):
+        st[i] = 0.0

@@ -1,0 +1,140 @@
+"""The ``motor:`` configuration section (CANopen CiA 402 drive), validated on load.
+
+See ``config/motor.yaml`` for a documented example. Every invalid value raises
+:class:`capstan.models.common.errors.ConfigError` naming the key (``motor.<key>``) and the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from capstan.models.common.config_tools import get_choice, get_float, get_int, reject_unknown
+from capstan.models.common.errors import ConfigError
+
+#: directory of the EDS files shipped with capstan
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+_KEYS = frozenset({
+    "backend", "interface", "channel", "bitrate", "node_id", "master_node_id", "eds",
+    "mode", "encoder_counts_per_rev", "velocity_units_per_rev_s", "gear_ratio",
+    "rated_torque_Nm", "max_torque_Nm", "cycle_period_s", "heartbeat_period_s",
+    "drive_heartbeat_period_s", "consumer_timeout_s",
+})
+
+MODES = ("cst", "profile_torque")
+
+
+@dataclass(frozen=True)
+class MotorConfig:
+    """Frozen settings of the CANopen motor (SI units).
+
+    :ivar interface: python-can interface (``socketcan`` on the rig, ``capstan_unix`` simulated).
+    :ivar channel: python-can channel (``can0``; a directory for ``capstan_unix``).
+    :ivar bitrate: CAN bit rate [bit/s] (ignored by virtual interfaces).
+    :ivar node_id: drive node id 1..127.
+    :ivar master_node_id: node id whose heartbeat the daemon produces (watched by the drive).
+    :ivar eds: path of the drive's EDS/DCF.
+    :ivar mode: ``cst`` (mode 10) or ``profile_torque`` (mode 4, only if 0x6502 lists it).
+    :ivar encoder_counts_per_rev: increments of 0x6064 per motor revolution.
+    :ivar velocity_units_per_rev_s: units of 0x606C per motor rev/s (counts/s: = encoder counts; rpm: 60).
+    :ivar gear_ratio: motor revolutions per revolution of the reported shaft.
+    :ivar rated_torque_Nm: rated torque (unit of 0x6071/0x6077 is 1/1000 of it); None: read 0x6076.
+    :ivar max_torque_Nm: commanded torque is clamped to +-this [Nm].
+    :ivar cycle_period_s: control cycle = SYNC period = interpolation period 0x60C2 [s].
+    :ivar heartbeat_period_s: period of the daemon's own heartbeat [s].
+    :ivar drive_heartbeat_period_s: drive heartbeat 0x1017 [s]; lost after 3 periods.
+    :ivar consumer_timeout_s: drive-side consumer time 0x1016 watching the daemon [s].
+    """
+
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int = 1_000_000
+    node_id: int = 1
+    master_node_id: int = 127
+    eds: str = str(DATA_DIR / "capstan_drive.eds")
+    mode: str = "cst"
+    encoder_counts_per_rev: int = 1 << 17
+    velocity_units_per_rev_s: float = float(1 << 17)
+    gear_ratio: float = 1.0
+    rated_torque_Nm: float | None = None
+    max_torque_Nm: float = 30.0
+    cycle_period_s: float = 0.001
+    heartbeat_period_s: float = 0.02
+    drive_heartbeat_period_s: float = 0.01
+    consumer_timeout_s: float = 0.1
+
+    @property
+    def position_rad_per_count(self) -> float:
+        """Scale of 0x6064 [rad/increment]."""
+        return 2 * math.pi / self.encoder_counts_per_rev / self.gear_ratio
+
+    @property
+    def velocity_rad_s_per_unit(self) -> float:
+        """Scale of 0x606C [rad/s per unit]."""
+        return 2 * math.pi / self.velocity_units_per_rev_s / self.gear_ratio
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any], prefix: str = "motor",
+                     base_dir: str | Path | None = None) -> "MotorConfig":
+        """Validate a ``motor:`` mapping.
+
+        :param base_dir: directory relative EDS paths are resolved against
+            (default: the current directory, then ``drivers/data``).
+        :raises ConfigError: naming the offending key and the reason.
+        """
+        reject_unknown(cfg, _KEYS, prefix)
+        d = cls()
+        eds = cfg.get("eds", d.eds)
+        if not isinstance(eds, str) or not eds:
+            raise ConfigError(f"{prefix}.eds", f"must be a file path, got {eds!r}")
+        path = Path(eds).expanduser()
+        if not path.is_absolute():
+            candidates = [Path(base_dir) / path] if base_dir is not None else [Path.cwd() / path]
+            candidates.append(DATA_DIR / path)
+            path = next((c for c in candidates if c.is_file()), candidates[0])
+        if not path.is_file():
+            raise ConfigError(f"{prefix}.eds", f"file not found: {path}")
+        counts = get_int(cfg, "encoder_counts_per_rev", prefix, d.encoder_counts_per_rev, min_value=1)
+        rated = cfg.get("rated_torque_Nm")
+        out = cls(
+            interface=_get_str(cfg, "interface", prefix, d.interface),
+            channel=_get_str(cfg, "channel", prefix, d.channel),
+            bitrate=get_int(cfg, "bitrate", prefix, d.bitrate, min_value=10_000, max_value=1_000_000),
+            node_id=get_int(cfg, "node_id", prefix, d.node_id, min_value=1, max_value=127),
+            master_node_id=get_int(cfg, "master_node_id", prefix, d.master_node_id, min_value=1, max_value=127),
+            eds=str(path),
+            mode=get_choice(cfg, "mode", MODES, prefix, d.mode),
+            encoder_counts_per_rev=counts,
+            velocity_units_per_rev_s=get_float(cfg, "velocity_units_per_rev_s", prefix, float(counts),
+                                               min_value=0.0, min_exclusive=True),
+            gear_ratio=get_float(cfg, "gear_ratio", prefix, d.gear_ratio, min_value=0.0, min_exclusive=True),
+            rated_torque_Nm=None if rated is None else get_float(cfg, "rated_torque_Nm", prefix,
+                                                                  min_value=0.0, min_exclusive=True),
+            max_torque_Nm=get_float(cfg, "max_torque_Nm", prefix, d.max_torque_Nm, min_value=0.0,
+                                    min_exclusive=True),
+            cycle_period_s=get_float(cfg, "cycle_period_s", prefix, d.cycle_period_s, min_value=1e-4,
+                                     max_value=0.255),
+            heartbeat_period_s=get_float(cfg, "heartbeat_period_s", prefix, d.heartbeat_period_s,
+                                         min_value=0.001, max_value=65.0),
+            drive_heartbeat_period_s=get_float(cfg, "drive_heartbeat_period_s", prefix,
+                                               d.drive_heartbeat_period_s, min_value=0.001, max_value=65.0),
+            consumer_timeout_s=get_float(cfg, "consumer_timeout_s", prefix, d.consumer_timeout_s,
+                                         min_value=0.001, max_value=65.0),
+        )
+        if out.node_id == out.master_node_id:
+            raise ConfigError(f"{prefix}.master_node_id", f"must differ from node_id {out.node_id}")
+        if out.consumer_timeout_s <= out.heartbeat_period_s:
+            raise ConfigError(f"{prefix}.consumer_timeout_s",
+                              f"must exceed heartbeat_period_s ({out.heartbeat_period_s} s), "
+                              f"got {out.consumer_timeout_s} s")
+        return out
+
+
+def _get_str(cfg: Mapping[str, Any], key: str, prefix: str, default: str) -> str:
+    val = cfg.get(key, default)
+    if not isinstance(val, str) or not val:
+        raise ConfigError(f"{prefix}.{key}", f"must be a non-empty string, got {val!r}")
+    return val

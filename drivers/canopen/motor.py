@@ -1,0 +1,426 @@
+"""The :class:`~capstan.drivers.interfaces.Motor` role on a CANopen CiA 402 drive.
+
+Start-up (blocking, SDO only, through canopen's ``RemoteNode``): required objects
+checked in the EDS, NMT pre-operational, 0x6502 checked for the configured mode,
+rated torque (0x6076 or configuration), PDO mapping (RPDO1: controlword 0x6040 +
+target torque 0x6071; TPDO1: statusword 0x6041 + mode display 0x6061 + position
+0x6064; TPDO2: velocity 0x606C + torque 0x6077; all SYNC type 1, other PDOs
+disabled), interpolation period 0x60C2, drive heartbeat 0x1017, drive consumer
+heartbeat 0x1016 on the daemon, mode 0x6060 verified on 0x6061, NMT start, then the
+DS402 transitions of :mod:`capstan.drivers.canopen.cia402` towards OPERATION ENABLED, each within its
+timeout, with controlword and SYNC sent cycle by cycle.
+
+Per cycle (never blocks, no SDO): :meth:`CanopenMotor.write_torque` stages the
+torque, :meth:`~CanopenMotor.send_cycle` sends RPDO1 then SYNC (and the daemon
+heartbeat when due) with ``bus.send``, :meth:`~CanopenMotor.poll` takes every frame
+received since the last poll, in order (no TPDO overwritten or missed) and checks the
+drive heartbeat (lost after 3 periods), EMCY and the statusword. A fault is latched
+and raised by every poll until :meth:`fault_reset`.
+
+Reception: during start-up canopen's notifier thread feeds SDO and a queue of our
+frames (supervised: a dead thread is a fault). Once the drive is enabled the thread is
+stopped and :meth:`poll` reads the bus itself with non-blocking ``recv(0)``
+(``DIRECT_READ``): no thread that can die silently or be starved of the GIL by a
+busy-waiting loop, and no SDO needed afterwards (disable, quick stop, fault reset and
+re-enable use the RPDO controlword only).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from collections import deque
+from typing import Any, Mapping
+
+import can
+import canopen
+
+from capstan.drivers.canopen.drive_setup import ObjectMissingError, check_required_objects, configure_drive
+from capstan.drivers.canopen.cia402 import (CONTROLWORD, Command402, OpMode, State402, decode_statusword,
+                            describe_statusword, path_to)
+from capstan.drivers.canopen.emcy import EmcyFault, decode_emcy
+from capstan.drivers.interfaces import MotorReading
+from capstan.drivers.canopen.config import MotorConfig
+from capstan.models.common.errors import (DeviceTimeoutError, DriveFaultError, DriverError, HeartbeatLostError,
+                           StateTransitionError)
+
+__all__ = ["CanopenMotor", "ObjectMissingError"]
+
+logger = logging.getLogger(__name__)
+
+
+_RPDO1 = struct.Struct("<Hh")
+_TPDO1 = struct.Struct("<Hbi")
+_TPDO2 = struct.Struct("<ih")
+_NMT_OPERATIONAL = 0x05
+_MODE = {"cst": OpMode.CYCLIC_SYNC_TORQUE, "profile_torque": OpMode.PROFILE_TORQUE}
+
+
+class CanopenMotor:
+    """CiA 402 drive over python-can + canopen; see the module docstring.
+
+    :param config: validated motor configuration.
+    :param bus: an open python-can bus to use (default: opened from the configuration).
+    """
+
+    #: default timeout of each DS402 transition number [s]
+    TRANSITION_TIMEOUT_S: dict[int, float] = {1: 2.0, 14: 1.0, 2: 0.5, 3: 0.5, 4: 1.0, 5: 0.5, 6: 0.5, 7: 0.5,
+                                              8: 0.5, 9: 0.5, 10: 0.5, 11: 0.5, 12: 2.0,
+                                              15: 1.0, 16: 0.5}
+    SDO_TIMEOUT_S = 0.5             #: SDO response timeout [s]
+    MODE_TIMEOUT_S = 0.5            #: time for 0x6061 to show the written mode [s]
+    FIRST_TPDO_TIMEOUT_S = 1.0      #: time for the first TPDO and heartbeat after NMT start [s]
+    HEARTBEAT_LOSS_PERIODS = 3      #: drive heartbeat periods without a frame -> lost
+    NOTIFIER_CYCLE_S = 0.05         #: receive thread wake-up period (shutdown latency) [s]
+    #: after start-up, poll() reads the bus itself instead of canopen's notifier thread
+    #: (no thread to die or to starve under the GIL; TPDOs are taken in order at poll time)
+    DIRECT_READ = True
+
+    def __init__(self, config: MotorConfig, bus: can.BusABC | None = None) -> None:
+        self.config = config
+        self._own_bus = bus is None
+        self._bus = bus
+        self.network: canopen.Network | None = None
+        self.node: canopen.RemoteNode | None = None
+        self.rated_torque_Nm = config.rated_torque_Nm or 0.0
+        self.mode = _MODE[config.mode]
+        self.state = State402.UNKNOWN
+        self.last_emcy: EmcyFault | None = None
+        self.reading = MotorReading()
+        self.syncs_sent = 0
+        self.tpdo1_received = 0
+        self.tpdo2_received = 0
+        self._rx: deque[tuple[int, bytes, float]] = deque()
+        self._rx_threads: list[threading.Thread] = []
+        self._direct = False
+        self._handover = False
+        self._fault: DriverError | None = None
+        self._controlword = 0
+        self._torque_permille = 0
+        self._expect_enabled = False
+        self._hb_last_s: float | None = None
+        self._hb_next_s = 0.0
+        self._cobs: tuple[int, int, int, int, int] = (0, 0, 0, 0, 0)
+        self._rpdo_msg = can.Message(arbitration_id=0x200 + config.node_id, data=bytearray(4),
+                                     is_extended_id=False)
+        self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        self._hb_msg = can.Message(arbitration_id=0x700 + config.master_node_id,
+                                   data=bytes([_NMT_OPERATIONAL]), is_extended_id=False)
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any], prefix: str = "motor") -> "CanopenMotor":
+        """Build from a ``motor:`` mapping (used by :mod:`capstan.drivers.registry`).
+
+        :raises ConfigError: naming the offending key.
+        """
+        return cls(MotorConfig.from_mapping(cfg, prefix))
+
+    # ================================================================ start-up
+    def start(self) -> None:
+        """Configure the drive over SDO, start NMT and bring it to OPERATION ENABLED.
+
+        :raises ObjectMissingError: if the EDS lacks a required object.
+        :raises ConfigError: if the rated torque is unknown or contradicts 0x6076.
+        :raises DriverError: (or a subclass) if a step fails or times out.
+        """
+        cfg = self.config
+        od = canopen.import_od(cfg.eds, cfg.node_id)
+        check_required_objects(od, cfg.eds)
+        if self._bus is None:
+            try:
+                self._bus = can.Bus(interface=cfg.interface, channel=cfg.channel, bitrate=cfg.bitrate)
+            except (can.CanError, OSError, ValueError) as exc:
+                raise DriverError(f"cannot open CAN interface {cfg.interface!r} channel "
+                                  f"{cfg.channel!r}: {exc}") from exc
+        self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = self.NOTIFIER_CYCLE_S
+        self.network.connect()
+        # python-can 4.x keeps its reader threads in Notifier._readers; supervised by _drain()
+        self._rx_threads = [t for t in getattr(self.network.notifier, "_readers", [])
+                            if isinstance(t, threading.Thread)]
+        self.node = self.network.add_node(cfg.node_id, od)
+        self.node.sdo.RESPONSE_TIMEOUT = self.SDO_TIMEOUT_S
+        try:
+            self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
+            done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
+        except canopen.SdoAbortedError as exc:
+            raise DriverError(f"drive {cfg.node_id} refused an SDO during set-up: {exc}") from exc
+        except canopen.SdoCommunicationError as exc:
+            raise DriverError(f"drive {cfg.node_id} did not answer SDO during set-up: {exc}") from exc
+        nid = cfg.node_id
+        self.rated_torque_Nm = done.rated_torque_Nm
+        self._rpdo_msg.arbitration_id = done.rpdo_cob
+        self._cobs = (done.tpdo1_cob, done.tpdo2_cob, 0x80 + nid, 0x700 + nid, 0)
+        for cob in self._cobs[:4]:
+            self.network.subscribe(cob, self._on_frame)
+        self.node.nmt.send_command(0x01)  # NMT start
+        self._wait_first_feedback()
+        self.enable()
+        if self.DIRECT_READ:
+            self._stop_notifier()
+
+    def _stop_notifier(self) -> None:
+        """Hand reception over from canopen's notifier thread to :meth:`poll` (no SDO after this)."""
+        notifier = self.network.notifier
+        if notifier is None:
+            return
+        self._handover = True
+        notifier.stop(timeout=0)          # ask the reader thread to end; keep cycling meanwhile
+        deadline = time.monotonic() + 4 * self.NOTIFIER_CYCLE_S + 0.5
+        while any(t.is_alive() for t in self._rx_threads):
+            if time.monotonic() > deadline:
+                raise DriverError("CAN receive thread does not stop")
+            self._step()
+        self._direct = True
+
+    def _wait_first_feedback(self) -> None:
+        deadline = time.monotonic() + self.FIRST_TPDO_TIMEOUT_S
+        while self.tpdo1_received == 0 or self._hb_last_s is None:
+            if time.monotonic() > deadline:
+                what = "TPDO1" if self.tpdo1_received == 0 else "heartbeat"
+                raise DeviceTimeoutError(f"drive {self.config.node_id}: no {what} within "
+                                         f"{self.FIRST_TPDO_TIMEOUT_S} s of NMT start")
+            self._step()
+
+    # =========================================================== state machine
+    def _step(self) -> None:
+        """One blocking-phase cycle: send, wait one period, drain (faults latched, not raised)."""
+        self.send_cycle()
+        time.sleep(self.config.cycle_period_s)
+        self._drain()
+
+    def _goto(self, target: State402) -> None:
+        """Walk the transition table to ``target``, re-planning after every state change."""
+        self._torque_permille = 0
+        if self.state == State402.UNKNOWN:
+            self._step()
+        for _ in range(8):
+            if self.state == target:
+                return
+            self._wait_automatic()
+            path = path_to(self.state, target)
+            if not path:
+                break
+            t = path[0]
+            if t.command == Command402.FAULT_RESET:
+                self._controlword = 0x0000  # bit 7 low first: a real rising edge
+                self._step()
+            self._controlword = CONTROLWORD[t.command]
+            timeout_s = self.TRANSITION_TIMEOUT_S.get(t.number, t.timeout_s)
+            deadline = time.monotonic() + timeout_s
+            while self.state == t.source:
+                if time.monotonic() > deadline:
+                    raise StateTransitionError(
+                        f"DS402 transition {t.number} ({t.source.name} -> {t.target.name}) not done in "
+                        f"{timeout_s} s; statusword {describe_statusword(self.reading.statusword)}")
+                self._step()
+            if t.number == 15 and self.state != State402.FAULT:
+                self._fault = None
+            if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+                raise self._fault or DriveFaultError(f"drive fault during transition {t.number}: "
+                                                     f"{describe_statusword(self.reading.statusword)}")
+        raise StateTransitionError(f"no DS402 path from {self.state.name} to {target.name}")
+
+    def _wait_automatic(self) -> None:
+        """Let the drive finish an automatic transition (1: NOT READY, 14: FAULT REACTION)."""
+        for number, state in ((1, State402.NOT_READY_TO_SWITCH_ON), (14, State402.FAULT_REACTION_ACTIVE)):
+            timeout_s = self.TRANSITION_TIMEOUT_S[number]
+            deadline = time.monotonic() + timeout_s
+            while self.state == state:
+                if time.monotonic() > deadline:
+                    raise StateTransitionError(f"drive stays in {state.name} (automatic transition "
+                                               f"{number} not done in {timeout_s} s)")
+                self._step()
+
+    def enable(self) -> None:
+        """Bring the drive to OPERATION ENABLED (zero torque) and verify the mode on 0x6061.
+
+        :raises DriveFaultError: if the drive faults on the way.
+        :raises StateTransitionError: if a transition exceeds its timeout.
+        """
+        self._drain()
+        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+            raise self._fault or DriveFaultError(
+                f"drive {self.config.node_id} is in {self.state.name}; call fault_reset() first")
+        self._goto(State402.OPERATION_ENABLED)
+        if self.reading.mode != int(self.mode):
+            raise StateTransitionError(f"drive enabled but 0x6061 shows mode {self.reading.mode}, "
+                                       f"not {int(self.mode)} ({self.mode.name})")
+        self._expect_enabled = True
+
+    def disable(self) -> None:
+        """Zero torque and shut down to READY TO SWITCH ON (transition 8); best effort, bounded."""
+        self._expect_enabled = False
+        self._torque_permille = 0
+        if self.network is None or self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+            return
+        try:
+            self._goto(State402.READY_TO_SWITCH_ON)
+        except DriverError as exc:
+            logger.error("drive %d: disable incomplete: %s", self.config.node_id, exc)
+
+    def quick_stop(self) -> None:
+        """Command QUICK STOP (transition 11) and wait until the drive reports it (or SWITCH ON DISABLED).
+
+        :raises StateTransitionError: if the drive does not react in time.
+        """
+        self._expect_enabled = False
+        self._torque_permille = 0
+        self._controlword = CONTROLWORD[Command402.QUICK_STOP]
+        timeout_s = self.TRANSITION_TIMEOUT_S[11]
+        deadline = time.monotonic() + timeout_s
+        while self.state not in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED):
+            if time.monotonic() > deadline:
+                raise StateTransitionError(f"quick stop (transition 11) not done in {timeout_s} s; "
+                                           f"statusword {describe_statusword(self.reading.statusword)}")
+            self._step()
+
+    def fault_reset(self) -> None:
+        """Clear the latched fault and reset the drive (rising edge of controlword bit 7, transition 15).
+
+        :raises StateTransitionError: if the drive stays in FAULT.
+        """
+        self._expect_enabled = False
+        self._fault = None
+        self._drain()
+        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.UNKNOWN):
+            self._goto(State402.SWITCH_ON_DISABLED)
+        self._fault = None
+
+    # ================================================================ per cycle
+    def write_torque(self, torque_Nm: float) -> None:
+        """Stage the target torque [Nm] for the next cycle (clamped to max_torque_Nm; NaN -> 0).
+
+        :raises DriverError: before :meth:`start` (the rated torque is not known yet).
+        """
+        if not self.rated_torque_Nm > 0:
+            raise DriverError("motor not started: rated torque unknown")
+        lim = self.config.max_torque_Nm
+        tau = min(lim, max(-lim, torque_Nm)) if torque_Nm == torque_Nm else 0.0
+        self._torque_permille = max(-32768, min(32767, round(tau * 1000.0 / self.rated_torque_Nm)))
+
+    def send_cycle(self) -> None:
+        """Send RPDO1 (controlword, target torque), then SYNC; the daemon heartbeat when due.
+
+        :raises DriverError: if the bus refuses a frame.
+        """
+        if self.network is None:
+            raise DriverError("motor not started")
+        _RPDO1.pack_into(self._rpdo_msg.data, 0, self._controlword,
+                         self._torque_permille if self._expect_enabled else 0)
+        try:
+            self._bus.send(self._rpdo_msg)
+            self._bus.send(self._sync_msg)
+            now = time.monotonic()
+            if now >= self._hb_next_s:
+                self._hb_next_s = now + self.config.heartbeat_period_s
+                self._bus.send(self._hb_msg)
+        except can.CanError as exc:
+            raise DriverError(f"CAN send failed: {exc}") from exc
+        self.syncs_sent += 1
+
+    def _on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self._rx.append((can_id, bytes(data), time.monotonic()))
+
+    def _drain(self) -> bool:
+        """Process received frames; latch faults. True if a TPDO arrived."""
+        rx = self._rx
+        if self._direct:
+            now_s = time.monotonic()
+            to_mono = now_s - time.time()
+            try:
+                while (msg := self._bus.recv(0)) is not None:
+                    if not (msg.is_error_frame or msg.is_remote_frame):
+                        t_s = msg.timestamp + to_mono
+                        rx.append((msg.arbitration_id, msg.data, t_s if abs(t_s - now_s) < 1.0 else now_s))
+            except (can.CanError, OSError) as exc:
+                self._fault = self._fault or DriverError(f"CAN receive failed: {exc}")
+        else:
+            notifier = self.network.notifier
+            if notifier is not None and (notifier.exception is not None or not (
+                    self._handover or all(t.is_alive() for t in self._rx_threads))):
+                self._fault = self._fault or DriverError(f"CAN receive thread died: {notifier.exception!r}")
+        tpdo1, tpdo2, emcy, hb, _ = self._cobs
+        rd, new = self.reading, False
+        while rx:
+            can_id, data, t_s = rx.popleft()
+            if can_id == tpdo1 and len(data) >= 7:
+                rd.statusword, rd.mode, pos = _TPDO1.unpack_from(data)
+                rd.position_rad = pos * self.config.position_rad_per_count
+                rd.t_s, new = t_s, True
+                self.tpdo1_received += 1
+                self.state = decode_statusword(rd.statusword)
+            elif can_id == tpdo2 and len(data) >= 6:
+                vel, tq = _TPDO2.unpack_from(data)
+                rd.velocity_rad_s = vel * self.config.velocity_rad_s_per_unit
+                rd.torque_Nm = tq * self.rated_torque_Nm / 1000.0
+                rd.t_s, new = t_s, True
+                self.tpdo2_received += 1
+            elif can_id == hb and data:
+                self._hb_last_s = t_s
+                if data[0] != _NMT_OPERATIONAL and self._expect_enabled:
+                    self._fault = self._fault or DriveFaultError(
+                        f"drive {self.config.node_id} left NMT OPERATIONAL (heartbeat state 0x{data[0]:02X})")
+            elif can_id == emcy:
+                fault = decode_emcy(data, t_s)
+                self.last_emcy = fault
+                if not fault.is_reset:
+                    logger.error("drive %d: %s", self.config.node_id, fault)
+                    self._fault = self._fault or DriveFaultError(f"drive {self.config.node_id}: {fault}")
+        if new and self._expect_enabled:
+            if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+                self._fault = self._fault or DriveFaultError(
+                    f"drive {self.config.node_id} fault: {describe_statusword(rd.statusword)}"
+                    + (f"; last {self.last_emcy}" if self.last_emcy else ""))
+            elif self.state != State402.OPERATION_ENABLED or rd.mode != int(self.mode):
+                self._fault = self._fault or DriveFaultError(
+                    f"drive {self.config.node_id} left OPERATION ENABLED/{self.mode.name}: "
+                    f"{describe_statusword(rd.statusword)}, mode {rd.mode}")
+        limit_s = self.HEARTBEAT_LOSS_PERIODS * self.config.drive_heartbeat_period_s
+        if self._hb_last_s is not None and time.monotonic() - self._hb_last_s > limit_s:
+            self._fault = self._fault or HeartbeatLostError(
+                f"drive {self.config.node_id}: no heartbeat for more than {self.HEARTBEAT_LOSS_PERIODS} "
+                f"periods ({limit_s * 1000:.0f} ms)")
+        return new
+
+    def poll(self) -> MotorReading | None:
+        """Drain received frames without blocking; the newest reading or None if no new TPDO.
+
+        The returned object is reused and updated by later polls.
+
+        :raises DriveFaultError: on EMCY, a fault in the statusword or the drive leaving OPERATION ENABLED.
+        :raises HeartbeatLostError: when the drive heartbeat is missing for 3 periods.
+        :raises DriverError: when the CAN receive thread died.
+        """
+        new = self._drain()
+        if self._fault is not None:
+            self._expect_enabled = False
+            raise self._fault
+        return self.reading if new else None
+
+    def close(self) -> None:
+        """Disable (best effort), put the drive in NMT PRE-OPERATIONAL and release the bus."""
+        if self.network is None:
+            return
+        try:
+            if self.state == State402.OPERATION_ENABLED:
+                self.disable()
+            self.node.nmt.send_command(0x80)
+        except Exception as exc:  # best effort: the bus or the drive may be gone
+            logger.warning("drive %d: close: %s", self.config.node_id, exc)
+        for cob in self._cobs[:4]:
+            if self._on_frame in self.network.subscribers.get(cob, ()):
+                self.network.unsubscribe(cob, self._on_frame)
+        try:
+            if self._own_bus:
+                self.network.disconnect()
+            else:
+                if self.network.notifier is not None:
+                    self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
+                del self.network[self.config.node_id]
+        except Exception as exc:  # a dead receive thread re-raises its error here
+            logger.warning("drive %d: close: %s", self.config.node_id, exc)
+        self.network = None
+

@@ -1,0 +1,384 @@
+"""Simulated serial devices on pseudo-terminals: an Xsens MTi and the load-cell amplifier.
+
+Each simulated device writes the real device's bytes into the master side of a pty
+pair (``os.openpty``); the driver opens the slave path with pyserial exactly as it
+would open ``/dev/ttyUSB0``. The simulated rig process drives them:
+
+- :class:`SimXsens` ``service()`` answers host commands without blocking (GoToConfig,
+  SetOutputConfiguration with an echo of the accepted configuration, GoToMeasurement,
+  ReqDID; Error 0x42 for anything unsupported) and ``emit(t, q, dq)`` writes one
+  MTData2 packet in measurement mode, using the same joint mapping as
+  :mod:`capstan.drivers.serial.xsens` (axis, sign, offset).
+- :class:`SimLoadCellAmp` ``emit(tensions_N)`` writes one frame in mV/V, the inverse of
+  the driver's ``scale_N_per_mV_V``/``offset_N`` (plus an optional bridge bias that a
+  tare removes).
+
+Fault injection for tests: ``inject_fault(SerialFault.X, count)`` applies to the next
+``count`` emitted frames (corrupt checksum, truncated frame, garbage bytes before the
+frame, dropped packet-counter value).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import math
+import os
+import random
+import struct
+import tty
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Mapping
+
+from capstan.drivers.serial.loadcell import LoadCellConfig
+from capstan.drivers.serial.loadcell_protocol import N_CHANNELS, build_frame
+from capstan.drivers.serial.xsens import (
+    BASE_RATE_HZ, JointAxis, XsensConfig, euler_deg_from_quaternion, output_configuration,
+)
+from capstan.drivers.serial.xsens_protocol import (
+    FREQ_EVERY_PACKET, PRECISION_MASK, SAMPLE_TIME_FINE_HZ, XDI_TYPE_MASK, ErrorCode, Mid,
+    XbusParser, Xdi, build_message, build_mtdata2_item, decode_output_configuration,
+    encode_output_configuration, encode_values,
+)
+from capstan.models.common.errors import ProtocolError
+
+#: bytes a simulated device queues while the reader lags; beyond that frames are dropped
+MAX_PENDING_BYTES = 65536
+STATUS_WORD_OK = 0x00000003  # self-test passed, filter valid
+
+
+@dataclass
+class PtyPair:
+    """A pseudo-terminal pair: the device writes ``master_fd``, the driver opens ``slave_path``.
+
+    ``slave_fd`` is kept open so that the master never sees EIO between driver sessions.
+    """
+
+    master_fd: int
+    slave_fd: int
+    slave_path: str
+
+    def close(self) -> None:
+        """Close both ends (idempotent)."""
+        for fd in (self.master_fd, self.slave_fd):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.master_fd = self.slave_fd = -1
+
+
+def open_pty_pair() -> PtyPair:
+    """Open a raw (no echo, no line editing, 8-bit clean), non-blocking pty pair.
+
+    :raises OSError: if the system has no free pseudo-terminal.
+    """
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    fl = fcntl.fcntl(master, fcntl.F_GETFL)
+    fcntl.fcntl(master, fcntl.F_SETFL, fl | os.O_NONBLOCK)
+    return PtyPair(master, slave, os.ttyname(slave))
+
+
+class SerialFault(IntEnum):
+    """Faults a simulated device can inject into its next frames."""
+
+    CORRUPT_CHECKSUM = 1
+    TRUNCATE = 2
+    GARBAGE = 3
+    DROP_COUNTER = 4
+
+
+class _Endpoint:
+    """Non-blocking byte pipe over a pty master fd, a device path or a pyserial port."""
+
+    def __init__(self, fd_or_port: int | str | Any) -> None:
+        self._fd = -1
+        self._port: Any = None
+        if isinstance(fd_or_port, int):
+            self._fd = fd_or_port
+            fl = fcntl.fcntl(self._fd, fcntl.F_GETFL)
+            fcntl.fcntl(self._fd, fcntl.F_SETFL, fl | os.O_NONBLOCK)
+        elif isinstance(fd_or_port, str):
+            import serial
+
+            self._port = serial.Serial(fd_or_port, timeout=0)
+        else:
+            self._port = fd_or_port
+        self._pending = bytearray()
+        self.dropped_bytes = 0
+
+    def read_available(self) -> bytes:
+        if self._port is not None:
+            n = self._port.in_waiting
+            return self._port.read(n) if n else b""
+        try:
+            return os.read(self._fd, 65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:  # EIO: no reader/writer on the other side
+            return b""
+
+    def write(self, data: bytes) -> None:
+        if len(self._pending) + len(data) > MAX_PENDING_BYTES:
+            self.dropped_bytes += len(data)
+        else:
+            self._pending += data
+        self.flush()
+
+    def flush(self) -> None:
+        if not self._pending:
+            return
+        if self._port is not None:
+            self._port.write(bytes(self._pending))
+            self._pending.clear()
+            return
+        try:
+            n = os.write(self._fd, self._pending)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            n = len(self._pending)
+            self.dropped_bytes += n
+        del self._pending[:n]
+
+
+class _FaultInjector:
+    def __init__(self, seed: int) -> None:
+        self._faults: list[SerialFault] = []
+        self.rng = random.Random(seed)
+
+    def inject_fault(self, fault: SerialFault, count: int = 1) -> None:
+        """Apply ``fault`` to each of the next ``count`` emitted frames."""
+        self._faults += [SerialFault(fault)] * count
+
+    def _next_fault(self) -> SerialFault | None:
+        return self._faults.pop(0) if self._faults else None
+
+    def _damage(self, frame: bytes, fault: SerialFault | None) -> bytes:
+        if fault == SerialFault.CORRUPT_CHECKSUM:
+            return frame[:-1] + bytes((frame[-1] ^ 0x5A,))
+        if fault == SerialFault.TRUNCATE:
+            return frame[:max(2, len(frame) // 2)]
+        if fault == SerialFault.GARBAGE:
+            return self.rng.randbytes(self.rng.randint(1, 40)) + frame
+        return frame
+
+
+class SimMode(IntEnum):
+    """State of the simulated MTi."""
+
+    CONFIG = 0
+    MEASUREMENT = 1
+
+
+_SUPPORTED = {Xdi.PACKET_COUNTER, Xdi.SAMPLE_TIME_FINE, Xdi.QUATERNION, Xdi.EULER_ANGLES,
+              Xdi.RATE_OF_TURN, Xdi.STATUS_WORD}
+
+
+class SimXsens(_FaultInjector):
+    """A simulated Xsens MTi speaking the MT binary protocol.
+
+    Starts in measurement mode with the output configuration the driver's defaults
+    request (as a device configured earlier would). The orientation is the pure
+    rotation about the joint axis (no mounting tilt), whatever coordinate-system bits
+    are requested; items with a lower frequency than the packet rate are decimated.
+
+    :param fd_or_port: pty master fd, device path or pyserial port.
+    :param joint_axis: sensor axis aligned with the joint ("x", "y", "z" or JointAxis).
+    :param sign: +1 or -1, as in the driver config.
+    :param offset_rad: as in the driver config [rad].
+    :param device_id: reported by ReqDID.
+    :param seed: seed of the garbage generator.
+    """
+
+    def __init__(self, fd_or_port: int | str | Any, joint_axis: str | JointAxis = "z", sign: float = 1.0,
+                 offset_rad: float = 0.0, device_id: int = 0x037003F8, seed: int = 0) -> None:
+        super().__init__(seed)
+        self._ep = _Endpoint(fd_or_port)
+        self.axis = JointAxis[joint_axis.upper()] if isinstance(joint_axis, str) else JointAxis(joint_axis)
+        self.sign = float(sign)
+        self.offset_rad = float(offset_rad)
+        self.device_id = device_id
+        self.mode = SimMode.MEASUREMENT
+        self.output_config: list[tuple[int, int]] = output_configuration(XsensConfig(port=""))
+        self.packet_counter = 0
+        self.status_word = STATUS_WORD_OK
+        self.host_mids: list[int] = []
+        self._parser = XbusParser()
+        self._n_emitted = 0
+
+    @classmethod
+    def from_config(cls, fd_or_port: int | str | Any, cfg: Mapping[str, Any], seed: int = 0) -> SimXsens:
+        """Simulated device matching the driver's ``imu`` config section (axis, sign, offset).
+
+        :raises ConfigError: on an invalid section.
+        """
+        c = XsensConfig.from_mapping(cfg)
+        return cls(fd_or_port, c.joint_axis, c.sign, c.offset_rad, seed=seed)
+
+    @property
+    def output_rate_hz(self) -> int:
+        """Packet rate the configuration asks for [Hz] (the rig calls ``emit`` at it)."""
+        rates = [f for _, f in self.output_config if f not in (0, FREQ_EVERY_PACKET)]
+        return max(rates) if rates else BASE_RATE_HZ
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes discarded because the reader did not keep up."""
+        return self._ep.dropped_bytes
+
+    def service(self) -> None:
+        """Answer pending host commands; never blocks."""
+        data = self._ep.read_available()
+        if not data:
+            self._ep.flush()
+            return
+        for mid, payload in self._parser.feed(data):
+            self.host_mids.append(mid)
+            self._handle(mid, payload)
+
+    def _reply(self, mid: int, data: bytes = b"") -> None:
+        self._ep.write(build_message(mid, data))
+
+    def _error(self, code: ErrorCode) -> None:
+        self._reply(Mid.ERROR, bytes((int(code),)))
+
+    def _handle(self, mid: int, payload: bytes) -> None:
+        if mid == Mid.GO_TO_CONFIG:
+            self.mode = SimMode.CONFIG
+            self._reply(Mid.GO_TO_CONFIG_ACK)
+        elif mid == Mid.GO_TO_MEASUREMENT:
+            self.mode = SimMode.MEASUREMENT
+            self._reply(Mid.GO_TO_MEASUREMENT_ACK)
+        elif mid == Mid.REQ_DID:
+            self._reply(Mid.DEVICE_ID, struct.pack(">I", self.device_id))
+        elif mid == Mid.SET_OUTPUT_CONFIGURATION and self.mode == SimMode.CONFIG:
+            try:
+                items = decode_output_configuration(payload)
+            except ProtocolError:
+                self._error(ErrorCode.INVALID_PARAM)
+                return
+            if not items or not all(self._supported(x, f) for x, f in items):
+                self._error(ErrorCode.INVALID_PARAM)
+                return
+            accepted = [(x, FREQ_EVERY_PACKET if x & XDI_TYPE_MASK in (
+                Xdi.PACKET_COUNTER, Xdi.SAMPLE_TIME_FINE, Xdi.STATUS_WORD) else f) for x, f in items]
+            self.output_config = accepted
+            self._reply(Mid.OUTPUT_CONFIGURATION, encode_output_configuration(accepted))
+        else:
+            self._error(ErrorCode.INVALID_MESSAGE)
+
+    @staticmethod
+    def _supported(xdi: int, freq: int) -> bool:
+        kind = xdi & XDI_TYPE_MASK
+        if kind not in _SUPPORTED:
+            return False
+        if kind in (Xdi.PACKET_COUNTER, Xdi.SAMPLE_TIME_FINE, Xdi.STATUS_WORD):
+            return xdi == kind
+        if kind == Xdi.RATE_OF_TURN and xdi & 0x000C:
+            return False
+        if (xdi & 0x000C) == 0x000C:
+            return False
+        return freq in (0, FREQ_EVERY_PACKET) or (1 <= freq <= BASE_RATE_HZ and BASE_RATE_HZ % freq == 0)
+
+    def build_packet(self, sample_time_s: float, q_out_rad: float, dq_out_rad_s: float) -> bytes:
+        """The MTData2 message for one sample (advances the packet counter)."""
+        twist = self.sign * (q_out_rad - self.offset_rad)
+        a = int(self.axis)
+        q = [math.cos(twist / 2), 0.0, 0.0, 0.0]
+        q[1 + a] = math.sin(twist / 2)
+        w = [0.0, 0.0, 0.0]
+        w[a] = self.sign * dq_out_rad_s
+        base = self.output_rate_hz
+        items = []
+        for xdi, freq in self.output_config:
+            kind = xdi & XDI_TYPE_MASK
+            if freq not in (0, FREQ_EVERY_PACKET) and self._n_emitted % max(1, base // freq):
+                continue
+            prec = xdi & PRECISION_MASK
+            if kind == Xdi.PACKET_COUNTER:
+                value = struct.pack(">H", self.packet_counter)
+            elif kind == Xdi.SAMPLE_TIME_FINE:
+                value = struct.pack(">I", round(sample_time_s * SAMPLE_TIME_FINE_HZ) & 0xFFFFFFFF)
+            elif kind == Xdi.QUATERNION:
+                value = encode_values(q, prec)
+            elif kind == Xdi.EULER_ANGLES:
+                value = encode_values(euler_deg_from_quaternion(tuple(q)), prec)
+            elif kind == Xdi.RATE_OF_TURN:
+                value = encode_values(w, prec)
+            else:
+                value = struct.pack(">I", self.status_word)
+            items.append(build_mtdata2_item(xdi, value))
+        self._n_emitted += 1
+        self.packet_counter = (self.packet_counter + 1) & 0xFFFF
+        return build_message(Mid.MT_DATA2, b"".join(items))
+
+    def emit(self, sample_time_s: float, q_out_rad: float, dq_out_rad_s: float) -> bool:
+        """Write one MTData2 packet if in measurement mode; True if a packet was written.
+
+        :param sample_time_s: device sample time (SampleTimeFine = round(t * 10 kHz)) [s].
+        :param q_out_rad: joint angle [rad].
+        :param dq_out_rad_s: joint rate [rad/s].
+        """
+        if self.mode != SimMode.MEASUREMENT:
+            self._ep.flush()
+            return False
+        fault = self._next_fault()
+        if fault == SerialFault.DROP_COUNTER:
+            self.packet_counter = (self.packet_counter + 1) & 0xFFFF
+        frame = self.build_packet(sample_time_s, q_out_rad, dq_out_rad_s)
+        self._ep.write(self._damage(frame, fault))
+        return True
+
+
+class SimLoadCellAmp(_FaultInjector):
+    """A simulated 4-channel load-cell amplifier streaming binary frames.
+
+    :param fd_or_port: pty master fd, device path or pyserial port.
+    :param scale_N_per_mV_V: per-channel sensitivity the driver is configured with.
+    :param offset_N: per-channel offset the driver is configured with [N].
+    :param bias_mV_V: bridge zero error added to the signal (removed by a tare) [mV/V].
+    :param seed: seed of the garbage generator.
+    """
+
+    def __init__(self, fd_or_port: int | str | Any,
+                 scale_N_per_mV_V: tuple[float, ...] | list[float] = (250.0,) * N_CHANNELS,
+                 offset_N: tuple[float, ...] | list[float] = (0.0,) * N_CHANNELS,
+                 bias_mV_V: tuple[float, ...] | list[float] = (0.0,) * N_CHANNELS, seed: int = 0) -> None:
+        super().__init__(seed)
+        self._ep = _Endpoint(fd_or_port)
+        self.scale = tuple(float(s) for s in scale_N_per_mV_V)
+        self.offset = tuple(float(o) for o in offset_N)
+        self.bias = tuple(float(b) for b in bias_mV_V)
+
+    @classmethod
+    def from_config(cls, fd_or_port: int | str | Any, cfg: Mapping[str, Any],
+                    bias_mV_V: tuple[float, ...] = (0.0,) * N_CHANNELS, seed: int = 0) -> SimLoadCellAmp:
+        """Simulated amplifier inverse to the driver's ``load_cells`` config section.
+
+        :raises ConfigError: on an invalid section.
+        """
+        c = LoadCellConfig.from_mapping(cfg)
+        return cls(fd_or_port, c.scale_N_per_mV_V, c.offset_N, bias_mV_V, seed)
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes discarded because the reader did not keep up."""
+        return self._ep.dropped_bytes
+
+    def service(self) -> None:
+        """Discard host input (the amplifier takes no commands) and flush; never blocks."""
+        self._ep.read_available()
+        self._ep.flush()
+
+    def raw_mV_V(self, tensions_N: Any) -> tuple[float, float, float, float]:
+        """Bridge signals [mV/V] for tensions [N] (channel order of the frame)."""
+        t = [float(x) for x in tensions_N]
+        return tuple((t[k] - self.offset[k]) / self.scale[k] + self.bias[k]  # type: ignore[return-value]
+                     for k in range(N_CHANNELS))
+
+    def emit(self, tensions_N: Any) -> None:
+        """Write one frame for the four tensions [N] (upper in, upper out, lower out, lower in)."""
+        frame = build_frame(self.raw_mV_V(tensions_N))
+        self._ep.write(self._damage(frame, self._next_fault()))

@@ -1,0 +1,11 @@
+"""Identification and model closure: fit, residual, trace, missing effects.
+
+``signals`` (candidate signals of a run), ``baseline_shape`` and ``identification`` (the
+baseline fit), ``effects`` (the catalogue of missing effects), ``augmented`` (baseline +
+effects as one model), ``residual_trace`` (signal attribution), ``pipeline`` (the
+closure itself) and ``effects_runtime`` (learned effects in the controller's format).
+
+May import :mod:`capstan.models.distributed`, :mod:`capstan.models.transmission` and
+:mod:`capstan.models.common`; not :mod:`capstan.models.plant` (a fit must not know the
+simulator that produced its data).
+"""

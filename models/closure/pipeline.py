@@ -1,0 +1,317 @@
+"""Model closure: fit the baseline on training runs, predict held-out runs, trace the
+residual to signals, try every catalogued effect (and the empirical fallbacks), and
+select greedily the ones whose held-out improvement is significant.
+
+Significance: the held-out data are cut into contiguous blocks (``BLOCK_S`` seconds,
+never crossing a run); a block bootstrap (``N_BOOT`` resamples of blocks) of
+``1 - sqrt(sum SSE_after / sum SSE_before)`` gives a one-sided 95 % lower bound. A
+candidate is *significant* when that bound is > 0 and the point improvement is at
+least ``MATERIAL`` (5 % lower held-out RMSE).
+
+Each candidate is scored as an augmented model refitted on the training data: the
+baseline's parameters -- linear ones *and* its nonlinear shape alpha, eta_s
+(:mod:`capstan.models.closure.baseline_shape`) -- jointly with every selected effect and the candidate. A
+baseline fitted alone bends its viscous term and Stribeck shape to absorb what it lacks;
+only the joint refit gives an overlapping candidate (drag at speed) its full share. A
+latency candidate realigns the late channel (lag on a grid, refined to whole samples
+on consecutive training samples) and the whole model is re-evaluated on the realigned
+signals (:mod:`capstan.models.closure.augmented`).
+
+Catalogue first: when both catalogue and empirical candidates are significant, the
+best catalogue effect is taken if it achieves at least ``PREFER_CATALOGUE`` of the best
+empirical improvement; otherwise the empirical curve is taken and described (which
+signal, friction-like or additive, trend or period) instead of forcing an effect.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
+from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
+from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
+from capstan.models.closure.residual_trace import describe_curve, empirical_candidates, is_empirical
+from capstan.models.closure.signals import Signals
+
+MATERIAL = 0.05
+PREFER_CATALOGUE = 0.7
+BLOCK_S = 2.0
+N_BOOT = 400
+MAX_ROUNDS = 4
+MAX_SAMPLES = 20000
+#: at most this many consecutive training samples for the latency search
+LAG_MAX_SAMPLES = 100000
+
+Progress = Callable[[int, int, str], None]
+
+
+@dataclass
+class Candidate:
+    """One candidate tried in one round (see the module docstring for the scores)."""
+
+    effect: str
+    depends_on: list[str]
+    target: Target
+    round: int
+    shape: dict
+    params: dict[str, float]
+    rmse_Nm: float
+    max_err_Nm: float
+    improvement: float
+    ci_low: float
+    significant: bool
+    spec: EffectSpec | None = None
+    F_train: np.ndarray | None = None
+    F_test: np.ndarray | None = None
+    description: dict | None = None
+    #: the augmented model's baseline parameters refitted with this candidate (friction path)
+    baseline_params: dict[str, float] | None = None
+
+    def summary(self) -> dict:
+        """JSON-able summary."""
+        d = {"effect": self.effect, "depends_on": list(self.depends_on), "target": self.target.name.lower(),
+             "round": self.round, "rmse_Nm": self.rmse_Nm, "max_err_Nm": self.max_err_Nm,
+             "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
+        if self.description:
+            d["description"] = self.description["text"]
+        return d
+
+
+@dataclass
+class TargetResult:
+    """Closure of one target (the friction path tau_out, or the elastic path)."""
+
+    target: Target
+    y_test: np.ndarray
+    pred_before: np.ndarray
+    pred_after: np.ndarray
+    rmse_before_Nm: float
+    max_before_Nm: float
+    rmse_after_Nm: float
+    max_after_Nm: float
+    candidates: list[Candidate] = field(default_factory=list)
+    selected: list[Candidate] = field(default_factory=list)
+    theta: np.ndarray | None = None
+    #: friction path: the baseline's parameters as refitted in the final augmented model
+    #: (linear ones, alpha_s_rad, eta_s_rad_s, zeta_s); the selected effects' coefficients
+    #: belong with these, not with the baseline fitted alone
+    params_after: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class ClosureResult:
+    """Everything the report needs."""
+
+    baseline: BaselineFit
+    train: Signals
+    test: Signals
+    targets: dict[Target, TargetResult]
+    trace: list[dict]
+
+
+def _rmse(r: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
+
+
+def test_blocks(sig: Signals, block_s: float = BLOCK_S) -> np.ndarray:
+    """Block label per held-out sample: contiguous ~block_s pieces inside each run (>= 8 blocks)."""
+    labels = np.empty(len(sig), dtype=np.int64)
+    dt = float(np.median(np.diff(sig.t_s))) if len(sig) > 1 else 1e-3
+    per = max(50, int(block_s / max(dt, 1e-6)))
+    per = min(per, max(50, len(sig) // 8))
+    k = 0
+    for a, b in sig.segments():
+        m = b - a
+        nb = max(1, int(round(m / per)))
+        labels[a:b] = k + np.minimum((np.arange(m) * nb) // m, nb - 1)
+        k += nb
+    return labels
+
+
+def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarray,
+                    n_boot: int = N_BOOT, seed: int = 12345) -> tuple[float, float]:
+    """(point improvement, one-sided 95 % lower bound) of the relative RMSE reduction."""
+    nb = int(labels.max()) + 1
+    sb = np.bincount(labels, r_before ** 2, nb)
+    sa = np.bincount(labels, r_after ** 2, nb)
+    point = 1.0 - math.sqrt(sa.sum() / max(sb.sum(), 1e-300))
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, nb, size=(n_boot, nb))
+    boots = 1.0 - np.sqrt(sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
+    return point, float(np.quantile(boots, 0.05))
+
+
+def _best_shape(spec: EffectSpec, aug: Augmented, Q: np.ndarray,
+                r0: np.ndarray) -> tuple[dict | None, np.ndarray | None]:
+    """The shape of ``spec``'s grid whose basis best explains the training residual ``r0``
+    of the current model (projected out: ``Q`` spans its design), with its basis."""
+    best: tuple[float, dict | None, np.ndarray | None] = (math.inf, None, None)
+    for sh in spec.grid:
+        F = aug.features(spec, sh, aug.realign)
+        Ft = F - Q @ (Q.T @ F)
+        c = scaled_lstsq(Ft, r0, np.full(Ft.shape[1], is_empirical(spec)))
+        sse = float(np.sum((r0 - Ft @ c) ** 2))
+        if sse < best[0]:
+            best = (sse, sh, F)
+    return best[1], best[2]
+
+
+def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
+                  progress: Progress | None, step0: int, total: int) -> tuple[TargetResult, int]:
+    """Greedy closure of one target. Features are computed on the full-rate signals
+    (time shifts stay exact) and fitted on the decimated rows."""
+    d = aug.data
+    if aug.theta is None:      # elastic path: its linear fit
+        X0 = aug.design_train()
+        aug.theta = scaled_lstsq(X0, d.y_Nm, np.zeros(X0.shape[1], bool))
+    theta = aug.theta
+    pred_t = aug.design_test() @ theta
+    yt = d.yt_Nm
+    res = TargetResult(d.target, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t), float(np.max(np.abs(yt - pred_t))),
+                       math.nan, math.nan)
+    if d.target == Target.TAU_OUT:
+        res.params_after = named_params(d.kind, theta, aug.alpha_s_rad, aug.eta_s_rad_s)
+    remaining = list(specs)
+    step = step0
+    for rnd in range(1, MAX_ROUNDS + 1):
+        Xc = aug.design_train()
+        Q, _ = np.linalg.qr(Xc / np.maximum(np.sqrt((Xc ** 2).mean(axis=0)), 1e-12))
+        r0 = d.y_Nm - Q @ (Q.T @ d.y_Nm)
+        r_before = yt - pred_t
+        tried: list[Candidate] = []
+        fits: dict[int, tuple[AugmentedFit, Realign | None, np.ndarray | None, dict]] = {}
+        for spec in remaining:
+            step += 1
+            if progress:
+                progress(step, total, f"round {rnd}: {spec.name}")
+            realign = aug.realign
+            F: np.ndarray | None = None
+            Fte: np.ndarray | None = None
+            ridge_F: np.ndarray | None = None
+            if spec.realigns:
+                if d.target != Target.TAU_OUT or aug.realign is not None:
+                    continue
+                realign = aug.best_lag(spec.grid, decimation_index(len(d.train), LAG_MAX_SAMPLES))
+                shape: dict = realign.as_shape()
+            else:
+                sh, F = _best_shape(spec, aug, Q, r0)
+                if sh is None or F is None:
+                    continue
+                shape = sh
+                Fte = aug.features(spec, shape, realign, test=True)
+                ridge_F = np.full(F.shape[1], is_empirical(spec))
+            fit = aug.fit(F, Fte, ridge_F, realign)
+            th = fit.theta
+            k = 0 if F is None else F.shape[1]
+            coef = th[len(th) - k:] * spec.loss_sign
+            r_after = yt - fit.pred_test_Nm
+            imp, lo = block_bootstrap(r_before, r_after, labels)
+            cand = Candidate(spec.name, list(spec.depends_on), d.target, rnd,
+                             {key: v for key, v in shape.items() if key != "knots"},
+                             {n: float(c) for n, c in zip(spec.coef_names, coef)} if not is_empirical(spec) else {},
+                             _rmse(r_after), float(np.max(np.abs(r_after))), imp, lo,
+                             bool(lo > 0.0 and imp >= MATERIAL), spec, F, Fte)
+            if d.target == Target.TAU_OUT:
+                cand.baseline_params = named_params(d.kind, th, fit.alpha_s_rad, fit.eta_s_rad_s)
+            if is_empirical(spec) and k:
+                knots = np.array([float(x) for x in str(shape["knots"]).split(",")])
+                cand.description = describe_curve(spec.depends_on[0], knots, th[len(th) - k:])
+                cand.description["knots"] = knots.tolist()
+                cand.description["curve"] = th[len(th) - k:].tolist()
+            fits[id(cand)] = (fit, realign, ridge_F, shape)
+            tried.append(cand)
+        res.candidates.extend(tried)
+        sig_c = [c for c in tried if c.significant]
+        if not sig_c:
+            break
+        cat = [c for c in sig_c if not is_empirical(c.spec)]
+        emp = [c for c in sig_c if is_empirical(c.spec)]
+        best_cat = max(cat, key=lambda c: c.improvement) if cat else None
+        best_emp = max(emp, key=lambda c: c.improvement) if emp else None
+        if best_cat is not None and (best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement):
+            win = best_cat
+        else:
+            win = best_emp
+        assert win is not None
+        res.selected.append(win)
+        wfit, wrealign, wridge, wshape = fits[id(win)]
+        assert win.spec is not None
+        aug.add(win.spec, wshape, wridge, wrealign, wfit)
+        if win.baseline_params is not None:
+            res.params_after = win.baseline_params
+        pred_t, theta = wfit.pred_test_Nm, wfit.theta
+        remaining = [s for s in remaining if s.name != win.effect or s.depends_on != tuple(win.depends_on)]
+        for c in tried:      # free memory of the losers
+            if c is not win:
+                c.F_train = c.F_test = None
+    res.pred_after = pred_t
+    res.theta = theta
+    res.rmse_after_Nm = _rmse(yt - pred_t)
+    res.max_after_Nm = float(np.max(np.abs(yt - pred_t)))
+    return res, step
+
+
+def decimation_index(n: int, max_samples: int | None) -> np.ndarray:
+    """Indices of every k-th sample so that at most ``max_samples`` remain (no averaging:
+    the noise the friction law sees stays that of the sensor)."""
+    k = max(1, int(math.ceil(n / max_samples))) if max_samples else 1
+    return np.arange(0, n, k)
+
+
+def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
+          progress: Progress | None = None, max_samples: int | None = MAX_SAMPLES) -> ClosureResult:
+    """Run the closure (see module docstring).
+
+    Signals are derived at the full rate by the caller; the fits use at most
+    ``max_samples`` samples of each of train and test (every k-th sample).
+
+    :raises ModelError: if the baseline cannot be fitted.
+    """
+    idx_tr, idx_te = decimation_index(len(train), max_samples), decimation_index(len(test), max_samples)
+    train_d, test_d = train.take(idx_tr), test.take(idx_te)
+    baseline = fit_baseline(train_d, kind)
+    ctx = FeatureContext.from_train(train_d, baseline)
+    labels = test_blocks(test_d)
+    emp = empirical_candidates(train)
+    specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp if s.target == Target.TAU_OUT and s.applicable(test)]}
+    if train.deflection_rad is not None and test.deflection_rad is not None:
+        specs[Target.ELASTIC] = [s for s in catalogue_for(train) + emp if s.target == Target.ELASTIC]
+    total = sum(len(v) for v in specs.values()) * 2
+    v95 = float(np.percentile(np.abs(train_d.dq_out_rad_s), 95))
+    targets: dict[Target, TargetResult] = {}
+    step = 0
+    for t, sp in specs.items():
+        X0: np.ndarray | None = None
+        X0t: np.ndarray | None = None
+        if t == Target.TAU_OUT:
+            y, yt = train_d.tau_out_Nm, test_d.tau_out_Nm
+        else:
+            assert train_d.q_in_rad is not None and test_d.q_in_rad is not None
+            y, yt = train_d.tau_in_Nm + train_d.tau_out_Nm, test_d.tau_in_Nm + test_d.tau_out_Nm
+            X0 = np.column_stack([train_d.q_in_rad, train_d.q_out_rad, np.ones(len(train_d))])
+            X0t = np.column_stack([test_d.q_in_rad, test_d.q_out_rad, np.ones(len(test_d))])
+        aug = Augmented(TargetData(t, kind, train, test, idx_tr, idx_te, y, yt, X0, X0t, v95), ctx,
+                        baseline.alpha_s_rad, baseline.eta_s_rad_s,
+                        theta=baseline.theta.copy() if t == Target.TAU_OUT else None)
+        targets[t], step = _close_target(aug, sp, labels, progress, step, total)
+    trace = []
+    for c in targets[Target.TAU_OUT].candidates:
+        if c.round == 1 and (is_empirical(c.spec) or c.effect == "sensor_latency"):
+            trace.append({"signal": c.depends_on[0], "explained": max(0.0, 1.0 - (1.0 - c.improvement) ** 2),
+                          "improvement": c.improvement, "significant": c.significant})
+    trace.sort(key=lambda d: -d["explained"])
+    if progress:
+        progress(total, total, "done")
+    return ClosureResult(baseline, train_d, test_d, targets, trace)
+
+
+def split_single(sig: Signals, train_fraction: float = 0.7) -> tuple[Signals, Signals]:
+    """Split one run into a contiguous training head and a held-out tail (never random samples)."""
+    n = len(sig)
+    k = int(round(train_fraction * n))
+    idx = np.arange(n)
+    return sig.take(idx < k), sig.take(idx >= k)

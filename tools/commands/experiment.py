@@ -1,0 +1,99 @@
+"""``capstan experiment``: the interaction experiment (paper §4.5, Fig. 13) on the simulated
+rig, and ``paper`` (reproduce the paper's figures; implemented in :mod:`capstan.tools.experiments.paper.experiment`).
+
+    capstan experiment interaction [--json] [--quick] [--duration-s S] [--seed N]
+    capstan experiment paper [...]            # options of tools.paper_experiment
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import json
+import logging
+import sys
+
+HELP = "experiments: interaction (Fig. 13 on the simulated rig), paper (reproduce the paper)"
+
+#: the paper's Fig. 13(d) mean |tau_h| [Nm]: uncompensated, then the compensated cases
+PAPER_FIG13_NM = {"uncompensated": 3.370, "compensated": (0.642, 0.498, 1.334, 0.663)}
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Subcommands ``interaction`` and ``paper``."""
+    sub = parser.add_subparsers(dest="experiment", required=True)
+    p = sub.add_parser("interaction", help="mean |tau_h| per controller and condition (Fig. 13)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--quick", action="store_true", help="one motion cycle per condition (~10 s wall time)")
+    p.add_argument("--duration-s", type=float, default=None, help="simulated time per run [s] (default 24, quick 6.5)")
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
+    q = sub.add_parser("paper", help="reproduce the paper's figures (tools.paper_experiment)")
+    # the paper experiment declares its own options; imported only when this command runs
+    if importlib.util.find_spec("capstan.tools.experiments.paper.experiment") is not None:
+        module = importlib.import_module("capstan.tools.experiments.paper.experiment")
+        if hasattr(module, "add_arguments"):
+            module.add_arguments(q)
+            return
+    q.add_argument("paper_args", nargs=argparse.REMAINDER, help="arguments passed to the paper experiment")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the chosen experiment; returns the exit code."""
+    if args.experiment == "paper":
+        return _run_paper(args)
+    from capstan.tools.experiments.interaction import run_experiment
+
+    duration = args.duration_s if args.duration_s is not None else (6.5 if args.quick else 24.0)
+    out = run_experiment(duration, seed=args.seed,
+                         progress=None if args.json else (lambda m: log.info("%s", m)))
+    out["duration_s"] = duration
+    out["ratios"] = _ratios(out["results"])
+    out["paper_fig13_Nm"] = PAPER_FIG13_NM
+    if args.json:
+        json.dump(out, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    _print_table(out)
+    return 0
+
+
+def _ratios(results: dict) -> dict:
+    """Uncompensated (PID, gravity only) mean |tau_h| over each controller's, per condition."""
+    ratios = {}
+    for cond, res in results.items():
+        base = res["pid_gravity_only"]["mean_abs_tau_h_Nm"]
+        ratios[cond] = {k: (base / v["mean_abs_tau_h_Nm"] if v["mean_abs_tau_h_Nm"] > 0 else float("inf"))
+                        for k, v in res.items()}
+    return ratios
+
+
+def _print_table(out: dict) -> None:
+    print(f"interaction experiment, {out['duration_s']:.1f} s simulated per run, mean |tau_h| [Nm]")
+    for cond, res in out["results"].items():
+        c = out["conditions"][cond]
+        h = c["human"]
+        print(f"\n{cond}: theta = {c['theta_rad']} rad, pretension = {c['pretension_N']} N, "
+              f"human K = {h['stiffness_Nm_rad']} Nm/rad, B = {h['damping_Nms_rad']} Nms/rad, "
+              f"stroke {2 * h['amplitude_rad']:.2f} rad in {h['move_s']} s, rests {h['rest_s']} s")
+        print(f"  {'controller':<26}{'mean|tau_h|':>12}{'ratio':>8}{'rms e_tau_in':>14}{'max|raw|':>10}  fault")
+        for key, m in res.items():
+            print(f"  {key:<26}{m['mean_abs_tau_h_Nm']:>12.3f}{out['ratios'][cond][key]:>8.2f}"
+                  f"{m['rms_tau_in_err_Nm']:>14.3f}{m['max_abs_tau_m_raw_Nm']:>10.2f}  {'YES' if m['faulted'] else 'no'}")
+    print(f"\npaper Fig. 13(d): {PAPER_FIG13_NM['uncompensated']} Nm uncompensated vs "
+          f"{', '.join(str(v) for v in PAPER_FIG13_NM['compensated'])} Nm compensated")
+
+
+def _run_paper(args: argparse.Namespace) -> int:
+    """Delegate to ``tools.paper_experiment.run(args)``.
+
+    :raises ConfigError: if the paper experiment module is not installed.
+    """
+    if importlib.util.find_spec("capstan.tools.experiments.paper.experiment") is None:
+        from capstan.models.common.errors import ConfigError
+
+        raise ConfigError("experiment", "the 'paper' experiment (tools.paper_experiment) is not available")
+    module = importlib.import_module("capstan.tools.experiments.paper.experiment")
+    return int(module.run(args) or 0)

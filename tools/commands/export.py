@@ -1,0 +1,55 @@
+"""``capstan export LOG.mcap --out RUN.csv``: a daemon log as a measurement table.
+
+Standard columns (see :mod:`capstan.models.common.measurement_table`) from the cycle records::
+
+    t        = t_s
+    tau_in   = r_in (T_up_in_N - T_lo_in_N)        r_in from the logged controller config
+    q_out    = q_out_rad,  dq_out = dq_out_rad_s
+    T_lc_in  = (T_up_in_N + T_lo_in_N) / 2         mean tension at the input-side fixtures
+    T_lc_out = (T_up_out_N + T_lo_out_N) / 2       mean tension at the output-side fixtures
+    q_in     = q_m_rad                             motor position (drives the input pulley)
+
+Every record field is also written as an extra column under its own name (units in
+the sidecar). A standard column whose source fields are absent is left out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+
+from capstan.tools.offline.log_table import records_to_table
+
+HELP = "export an MCAP log to the measurement table (CSV + YAML sidecar)"
+_log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``capstan export``."""
+    parser.add_argument("log", nargs="+", help="capstan MCAP log (several = one rotated run, in order)")
+    parser.add_argument("--out", required=True, help="output CSV (sidecar written next to it)")
+    parser.add_argument("--precision", type=int, default=12, help="significant digits (default 12)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``capstan export``; returns 0.
+
+    :raises DataFormatError: if the log cannot be read or mapped.
+    """
+    from capstan.controller.log.reader import read_log, read_logs
+    from capstan.tools.offline.progress import Progress
+    from capstan.models.common.measurement_table import write_table
+
+    paths = [Path(p) for p in args.log]
+    big = sum(p.stat().st_size for p in paths if p.exists()) > 20_000_000
+    bar = Progress("read", enabled=big and len(paths) == 1)
+    data = read_log(paths[0], bar.update) if len(paths) == 1 else read_logs(paths)
+    bar.done()
+    table = records_to_table(data.records, data.config, ", ".join(str(p) for p in paths))
+    if data.truncated:
+        table.meta["truncated"] = True
+    out = write_table(table, args.out, precision=args.precision)
+    print(f"{out}: {len(table)} rows, {len(table.columns)} columns (sidecar {out.with_suffix('.yaml')})")
+    return 0

@@ -1,0 +1,236 @@
+"""The interaction experiment of paper §4.5 / Fig. 13 on the simulated rig, lock-step at 1 kHz.
+
+Plant: :class:`capstan.models.plant.rig.SimulatedRig` with the motor input (J_m = 0.73 kg m^2, the
+distributed transmission) and the instrumented link (bar 500x20x20 mm + 0.5 kg tip mass,
+gravity). Sensors as the rig gives them: four noisy load cells every cycle, the IMU at
+400 Hz (angle and gyro noise), motor feedback.
+
+Human: an arm-like impedance grabbing the link handle and pulling it toward a reference
+motion (back-and-forth with rests)::
+
+    tau_h = K_h (q_ref - q_out) + B_h (dq_ref - dq_out)          applied to the link
+
+``tau_h`` is what a handle F/T sensor would read: the better the joint hides its friction
+and the motor behind the gravity-compensated link, the smaller ``mean |tau_h|``.
+
+Conditions (paper: slow motion with high bending, fast motion with low bending) and the
+four controllers (gravity only with PID, PID + feedforward, LDO, LDO + feedforward) are
+defined in :data:`CONDITIONS` and :func:`capstan.controller_mapping`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.models.plant.config import plant_from_mapping
+from capstan.models.plant.rig import SensorNoise, SimulatedRig
+
+
+@dataclass(frozen=True)
+class HumanModel:
+    """Arm impedance and its back-and-forth reference motion.
+
+    :ivar stiffness_Nm_rad: K_h [Nm/rad]; ``damping_Nms_rad``: B_h [Nm s/rad].
+    :ivar center_rad: middle of the motion [rad]; ``amplitude_rad``: half the stroke [rad].
+    :ivar move_s: duration of one stroke (raised-cosine velocity profile) [s].
+    :ivar rest_s: rest at each end of a stroke [s].
+    """
+
+    stiffness_Nm_rad: float = 60.0
+    damping_Nms_rad: float = 3.0
+    center_rad: float = 0.6
+    amplitude_rad: float = 0.6
+    move_s: float = 2.0
+    rest_s: float = 1.0
+
+    def reference(self, t_s: float) -> tuple[float, float]:
+        """Reference ``(q_ref_rad, dq_ref_rad_s)`` at time ``t_s``: start at rest at
+        ``center - amplitude``, then strokes to ``+amplitude`` and back, each followed by a rest."""
+        period = 2.0 * (self.move_s + self.rest_s)
+        t = (t_s % period)
+        lo = self.center_rad - self.amplitude_rad
+        stroke = 2.0 * self.amplitude_rad
+        # phases: rest at lo, move up, rest at hi, move down
+        if t < self.rest_s:
+            return lo, 0.0
+        t -= self.rest_s
+        if t < self.move_s:
+            x = t / self.move_s
+            return lo + stroke * 0.5 * (1 - math.cos(math.pi * x)), stroke * 0.5 * math.pi / self.move_s * math.sin(math.pi * x)
+        t -= self.move_s
+        if t < self.rest_s:
+            return lo + stroke, 0.0
+        x = (t - self.rest_s) / self.move_s
+        return lo + stroke * 0.5 * (1 + math.cos(math.pi * x)), -stroke * 0.5 * math.pi / self.move_s * math.sin(math.pi * x)
+
+    def torque_Nm(self, t_s: float, q_out_rad: float, dq_out_rad_s: float) -> float:
+        """Interaction torque the arm applies to the link [Nm]."""
+        q_ref, dq_ref = self.reference(t_s)
+        return self.stiffness_Nm_rad * (q_ref - q_out_rad) + self.damping_Nms_rad * (dq_ref - dq_out_rad_s)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """An experimental condition: routing bending, pretension and human motion."""
+
+    name: str
+    theta_rad: float
+    pretension_N: float
+    human: HumanModel
+
+
+#: the paper's two conditions (Fig. 13 b, c); routings are uniform over L = 1.379 m
+CONDITIONS: dict[str, Condition] = {
+    "slow_high_bending": Condition("slow_high_bending", 5.0, 180.0,
+                                   HumanModel(center_rad=0.6, amplitude_rad=0.6, move_s=2.0, rest_s=1.0)),
+    "fast_low_bending": Condition("fast_low_bending", 2.0, 180.0,
+                                  HumanModel(center_rad=0.4, amplitude_rad=0.4, move_s=1.0, rest_s=0.3)),
+}
+
+#: controller name -> (torque loop, feedforward enabled)
+CONTROLLERS: dict[str, tuple[str, bool]] = {
+    "pid_gravity_only": ("pid", False),
+    "pid_ff": ("pid", True),
+    "ldo": ("ldo", False),
+    "ldo_ff": ("ldo", True),
+}
+
+
+def plant_mapping(cond: Condition) -> dict[str, Any]:
+    """The ``plant`` mapping of the condition: motor input, link output, 10 nodes."""
+    return {
+        "transmission": {"n_nodes": 10},
+        "routing": {"length_m": 1.379, "theta_rad": cond.theta_rad},
+        "pretension": {"T0_N": cond.pretension_N},
+        "output": {"mode": "link"},
+        "input": {"mode": "motor", "motor_inertia_kg_m2": 0.73},
+    }
+
+
+def controller_mapping(cond: Condition, loop: str, feedforward: bool, placement: str = "reference",
+                       extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``controller`` mapping for a condition: the routing known to the feedforward is
+    the plant's; the link's m g l is the one of ``LinkParams.bar_with_tip_mass()``."""
+    from capstan.models.transmission.link import LinkParams
+
+    m: dict[str, Any] = {
+        "torque_loop": loop,
+        "gravity": {"enabled": True, "m_g_l_Nm": LinkParams.bar_with_tip_mass().m_g_l_Nm},
+        "feedforward": {"enabled": feedforward, "placement": placement,
+                        "routing": {"length_m": 1.379, "theta_rad": cond.theta_rad}},
+    }
+    for k, v in (extra or {}).items():
+        if isinstance(v, dict) and isinstance(m.get(k), dict):
+            m[k] = {**m[k], **v}
+        else:
+            m[k] = v
+    return m
+
+
+class LockStep:
+    """Runs a :class:`Controller` against a :class:`SimulatedRig` in lock-step.
+
+    Each cycle: sensors -> record -> ``ctl.step()`` -> ``rig.step(tau_m, tau_ext)``.
+    """
+
+    def __init__(self, ctl: Controller, rig: SimulatedRig) -> None:
+        self.ctl = ctl
+        self.rig = rig
+        self._imu_t_s = 0.0
+        self._cycle = 0
+
+    def write_measurements(self, tau_out_ref_Nm: float = 0.0) -> None:
+        """Fill the record's measurement fields from the rig's sensors at the rig time."""
+        rec = self.ctl.record[0]
+        t = self.rig.t_s
+        lc = self.rig.load_cells_N()
+        is_new, q, dq = self.rig.imu_sample()
+        if is_new:
+            self._imu_t_s = t
+        q_m, dq_m, tau_m = self.rig.motor_feedback()
+        rec["cycle"] = self._cycle
+        rec["t_s"] = t
+        rec["T_up_in_N"], rec["T_up_out_N"], rec["T_lo_out_N"], rec["T_lo_in_N"] = lc
+        rec["lc_t_s"] = t
+        rec["q_out_rad"], rec["dq_out_rad_s"] = q, dq
+        rec["imu_t_s"] = self._imu_t_s
+        rec["imu_new"] = 1 if is_new else 0
+        rec["q_m_rad"], rec["dq_m_rad_s"], rec["tau_m_meas_Nm"] = q_m, dq_m, tau_m
+        rec["motor_t_s"] = t
+        rec["tau_out_ref_Nm"] = tau_out_ref_Nm
+        self._cycle += 1
+
+    def cycle(self, tau_ext_Nm: float = 0.0, tau_out_ref_Nm: float = 0.0, dt_s: float = 1e-3) -> float:
+        """One lock-step cycle; returns the motor command [Nm]."""
+        self.write_measurements(tau_out_ref_Nm)
+        tau_m = self.ctl.step()
+        self.rig.step(tau_m, tau_ext_Nm, dt_s)
+        return tau_m
+
+
+def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
+                    noise: SensorNoise | None = None, settle_s: float = 0.5) -> dict[str, float]:
+    """Run one controller on one condition; return the metrics.
+
+    :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
+        ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage)
+        and ``faulted`` (1.0 if the safety stage latched; the run stops there).
+    :raises ConfigError: on a bad controller mapping; ``OperatingRangeError`` on cable slack.
+    """
+    rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
+                       seed=seed)
+    ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
+    ls = LockStep(ctl, rig)
+    n = int(round(duration_s / 1e-3))
+    tau_h = np.zeros(n)
+    err = np.zeros(n)
+    raw = np.zeros(n)
+    human = cond.human
+    model = rig.model
+    for k in range(n):
+        th = human.torque_Nm(rig.t_s, model.q_out_rad, model.dq_out_rad_s)
+        tau_h[k] = th
+        ls.cycle(th)
+        err[k] = ctl.record[0]["err_Nm"]
+        raw[k] = ctl.record[0]["tau_m_raw_Nm"]
+        if ctl.faulted:
+            break
+    k0 = int(round(settle_s / 1e-3))
+    sel = tau_h[k0:]
+    return {
+        "mean_abs_tau_h_Nm": float(np.mean(np.abs(sel))),
+        "rms_tau_h_Nm": float(np.sqrt(np.mean(sel**2))),
+        "max_abs_tau_h_Nm": float(np.max(np.abs(sel))),
+        "rms_tau_in_err_Nm": float(np.sqrt(np.mean(err[k0:] ** 2))),
+        "max_abs_tau_m_raw_Nm": float(np.max(np.abs(raw))),
+        "faulted": 1.0 if ctl.faulted else 0.0,
+    }
+
+
+def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference", "motor"),
+                   conditions: tuple[str, ...] = tuple(CONDITIONS), seed: int = 0,
+                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """All controllers x conditions (and both feedforward placements for the ``*_ff`` ones).
+
+    :returns: ``{condition: {controller[@placement]: metrics}}`` plus the condition descriptions.
+    """
+    out: dict[str, Any] = {"conditions": {}, "results": {}}
+    for cname in conditions:
+        cond = CONDITIONS[cname]
+        out["conditions"][cname] = {"theta_rad": cond.theta_rad, "pretension_N": cond.pretension_N,
+                                    "human": cond.human.__dict__}
+        res: dict[str, Any] = {}
+        for name, (loop, ff) in CONTROLLERS.items():
+            for placement in (placements if ff else ("reference",)):
+                key = name if not ff or placement == "reference" else f"{name}@{placement}"
+                res[key] = run_interaction(cond, controller_mapping(cond, loop, ff, placement), duration_s, seed)
+                if progress is not None:
+                    progress(f"{cname} {key}: mean |tau_h| = {res[key]['mean_abs_tau_h_Nm']:.3f} Nm")
+        out["results"][cname] = res
+    return out
