@@ -1,16 +1,8 @@
 """``capstan export LOG.mcap --out RUN.csv``: a daemon log as a measurement table.
 
-Standard columns (see :mod:`capstan.models.common.measurement_table`) from the cycle records::
-
-    t        = t_s
-    tau_in   = r_in (T_up_in_N - T_lo_in_N)        r_in from the logged controller config
-    q_out    = q_out_rad,  dq_out = dq_out_rad_s
-    T_lc_in  = (T_up_in_N + T_lo_in_N) / 2         mean tension at the input-side fixtures
-    T_lc_out = (T_up_out_N + T_lo_out_N) / 2       mean tension at the output-side fixtures
-    q_in     = q_m_rad                             motor position (drives the input pulley)
-
-Every record field is also written as an extra column under its own name (units in
-the sidecar). A standard column whose source fields are absent is left out.
+The mapping of cycle records onto the standard columns is
+:func:`capstan.tools.offline.log_table.records_to_table`; every record field is also
+written as an extra column under its own name (units in the sidecar).
 """
 
 from __future__ import annotations
