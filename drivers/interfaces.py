@@ -23,12 +23,15 @@ class LinkStats:
     :ivar bad_frames: frames rejected (checksum, length, malformed).
     :ivar counter_gaps: missing samples detected from a sample counter.
     :ivar resyncs: times the parser had to hunt for a frame start.
+    :ivar bytes_skipped: bytes that belonged to no accepted frame (garbage, rejected
+        candidates, bytes dropped by a parser reset).
     """
 
     good_frames: int = 0
     bad_frames: int = 0
     counter_gaps: int = 0
     resyncs: int = 0
+    bytes_skipped: int = 0
 
 
 @dataclass

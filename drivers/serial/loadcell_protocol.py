@@ -23,7 +23,11 @@ which the parser loses sync (one resync) and hunts for a start byte whose end by
 and checksum match. While hunting, a candidate with matching start and end bytes but
 a wrong checksum or non-finite values counts as a bad frame too; other bytes are
 skipped silently. The stream starts out hunting, so a partial first frame is not
-counted.
+counted. ``bytes_skipped`` counts every byte that belongs to no returned frame.
+
+Bound: the frame has a fixed length and no length field, so no byte sequence can make
+the parser wait for more than one frame (19 bytes): a candidate is judged as soon as
+its 19 bytes are in, and the hunt resumes one byte after a rejected start byte.
 """
 
 from __future__ import annotations
@@ -75,11 +79,20 @@ class LoadCellParser:
         self.stats = stats if stats is not None else LinkStats()
         self._buf = bytearray()
         self._in_sync = False
+        self._bytes_in = 0
+        self._frames = 0
+        self._skipped_reported = 0
 
     def reset(self) -> None:
-        """Drop buffered bytes and hunt for the next frame."""
+        """Drop buffered bytes (they count as skipped) and hunt for the next frame."""
         self._buf.clear()
         self._in_sync = False
+        self._report_skipped()
+
+    def _report_skipped(self) -> None:
+        skipped = self._bytes_in - FRAME_LEN * self._frames - len(self._buf)
+        self.stats.bytes_skipped += skipped - self._skipped_reported
+        self._skipped_reported = skipped
 
     @property
     def buffered(self) -> int:
@@ -90,6 +103,7 @@ class LoadCellParser:
         """Add bytes, return all complete valid frames (values in mV/V)."""
         buf = self._buf
         buf += data
+        self._bytes_in += len(data)
         n = len(buf)
         out: list[tuple[float, float, float, float]] = []
         stats = self.stats
@@ -131,4 +145,6 @@ class LoadCellParser:
             i = j + FRAME_LEN
         if i:
             del buf[:i]
+        self._frames += len(out)
+        self._report_skipped()
         return out

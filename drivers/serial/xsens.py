@@ -31,8 +31,8 @@ from typing import Any, Mapping
 from capstan.drivers.interfaces import ImuSample, LinkStats
 from capstan.drivers.serial.port_io import port_fd, read_available
 from capstan.drivers.serial.xsens_protocol import (
-    FREQ_EVERY_PACKET, CoordSys, Mid, MtData2, Precision, XbusParser, Xdi, build_message,
-    decode_output_configuration, encode_output_configuration, error_name, parse_mtdata2,
+    FREQ_EVERY_PACKET, LEN_EXTENDED, CoordSys, Mid, MtData2, Precision, XbusParser, Xdi, build_message,
+    decode_output_configuration, encode_output_configuration, error_name, mtdata2_max_len, parse_mtdata2,
 )
 from capstan.models.common.config_tools import get_choice, get_float, get_int, reject_unknown
 from capstan.models.common.errors import ConfigError, DeviceTimeoutError, DriverError, ProtocolError
@@ -249,15 +249,29 @@ class XsensImu:
             self._fd = port_fd(self._port)
             self._port.reset_input_buffer()
             self._parser.reset()
+            self._parser.set_limits()  # replies of any length until measurement mode
             self._request(Mid.GO_TO_CONFIG, b"", Mid.GO_TO_CONFIG_ACK)
             echo = self._request(Mid.SET_OUTPUT_CONFIGURATION, encode_output_configuration(self._out_cfg),
                                  Mid.OUTPUT_CONFIGURATION)
             self._check_echo(echo)
             self._request(Mid.GO_TO_MEASUREMENT, b"", Mid.GO_TO_MEASUREMENT_ACK)
+            self.bound_stream()
         except OSError as exc:  # serial.SerialException derives from OSError
             raise DriverError(f"IMU port {self.config.port} failed during start-up: {exc}") from exc
         self._last_counter = -1
         log.info("Xsens IMU on %s measuring at %d Hz", self.config.port, self.config.output_rate_hz)
+
+    def bound_stream(self, items: list[tuple[int, int]] | None = None) -> None:
+        """Bound the parser to what the output configuration can send in measurement mode.
+
+        MTData2 longer than all configured items together, and any other message of
+        extended length, is rejected as soon as its length field arrives.
+
+        :param items: the device's output configuration (default: the one requested).
+        :raises ProtocolError: if an item's size is unknown.
+        """
+        mt_len = mtdata2_max_len(self._out_cfg if items is None else items)
+        self._parser.set_limits(LEN_EXTENDED - 1, {Mid.MT_DATA2: mt_len})
 
     def _check_echo(self, data: bytes) -> None:
         got = decode_output_configuration(data)

@@ -252,6 +252,26 @@ def _item_decoder(xdi: int) -> tuple[str | None, int, Any] | None:
     return dec
 
 
+def item_value_size(xdi: int) -> int | None:
+    """Value bytes of one MTData2 item with this XDI, None for an XDI capstan does not know."""
+    dec = _DECODERS.get(xdi) or _item_decoder(xdi)
+    return None if dec is None else dec[1]
+
+
+def mtdata2_max_len(items: list[tuple[int, int]]) -> int:
+    """Longest MTData2 data [bytes] an output configuration can produce (all items present).
+
+    :raises ProtocolError: if an item's size is unknown (the bound would be a guess).
+    """
+    total = 0
+    for xdi, _freq in items:
+        size = item_value_size(xdi)
+        if size is None:
+            raise ProtocolError(f"size of MTData2 item 0x{xdi:04X} ({xdi_name(xdi)}) is unknown")
+        total += 3 + size
+    return total
+
+
 def parse_mtdata2(data: bytes) -> MtData2:
     """Decode the data of one MTData2 message.
 
