@@ -121,3 +121,50 @@ def test_console_script(tmp_path: Path) -> None:
                          timeout=60, check=True).stdout.splitlines()
     assert json.loads(out[0]) == {"frame": 1, "mid": "GO_TO_CONFIG_ACK"}
     assert json.loads(out[-1])["good_frames"] == 1
+
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+
+
+@pytest.mark.parametrize("config", ["serial_devices.yaml", "hil.yaml"])
+def test_decode_accepts_the_shipped_configs(config: str, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """The command serial_devices.yaml tells the user to run works on it (and on hil.yaml):
+    ``backend`` selects the driver and is dropped, as drivers/registry.py does."""
+    sink = _Sink()
+    sim = SimXsens(sink)  # the shipped configs: z axis, sign 1, offset 0
+    for k in range(3):
+        sim.emit(k / 400, 0.2 * k, 0.3)
+    cap = tmp_path / "imu.bin"
+    cap.write_bytes(bytes(sink.data))
+    rc, lines = _run(["decode", "xsens", str(cap), "--json", "--config", str(CONFIG_DIR / config)], capsys)
+    recs = [json.loads(x) for x in lines]
+    assert rc == 0
+    assert [r["q_out_rad"] for r in recs[:-1]] == pytest.approx([0.0, 0.2, 0.4], abs=1e-6)
+    assert all(r["coord_sys"] == "ENU" for r in recs[:-1])
+    lc = tmp_path / "lc.bin"
+    lc.write_bytes(build_frame((0.5, 0.5, 0.5, 0.5)) * 2)
+    rc, lines = _run(["decode", "loadcell", str(lc), "--json", "--config", str(CONFIG_DIR / config)], capsys)
+    recs = [json.loads(x) for x in lines]
+    assert rc == 0 and recs[0]["tensions_N"] == pytest.approx([125.0] * 4)  # 250 N per mV/V
+
+
+def test_decode_reports_coord_sys_of_the_orientation_item(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    from capstan.drivers.serial.xsens_protocol import build_mtdata2_item, encode_values
+
+    blob = b"".join(build_message(Mid.MT_DATA2, build_mtdata2_item(0x2010 | coord, encode_values((1, 0, 0, 0), 0)))
+                    for coord in (0x0, 0x4, 0x8))
+    cap = tmp_path / "imu.bin"
+    cap.write_bytes(blob)
+    rc, lines = _run(["decode", "xsens", str(cap), "--json"], capsys)
+    assert [json.loads(x).get("coord_sys") for x in lines[:-1]] == ["ENU", "NED", "NWU"]
+
+
+def test_decode_refuses_a_config_of_another_backend(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    cap = tmp_path / "imu.bin"
+    cap.write_bytes(build_message(Mid.GO_TO_CONFIG_ACK))
+    cfg = tmp_path / "dev.yaml"
+    cfg.write_text("imu:\n  backend: vectornav\n  port: /dev/ttyUSB0\n")
+    assert main(["decode", "xsens", str(cap), "--config", str(cfg)]) == 2
+    assert "'imu.backend'" in caplog.text and "vectornav" in caplog.text

@@ -55,12 +55,23 @@ def _chunks(path: Path) -> Iterator[bytes]:
         raise DataFormatError(f"cannot read capture {path}: {exc.strerror or exc}") from exc
 
 
-def _section(path: Path | None, key: str) -> dict[str, Any] | None:
+def _section(path: Path | None, key: str, backend: str) -> dict[str, Any] | None:
+    """The device section of a config file as the driver's config class takes it.
+
+    ``backend`` is dropped as :func:`capstan.drivers.registry.create` drops it (it selects
+    the class); a backend other than the decoder's protocol is refused.
+
+    :raises ConfigError: naming the key, if the section is missing or of another backend.
+    """
     if path is None:
         return None
     from capstan.models.common.config_tools import load_yaml, section
+    from capstan.models.common.errors import ConfigError
 
     cfg = dict(section(load_yaml(path), key))
+    name = cfg.pop("backend", backend)
+    if name != backend:
+        raise ConfigError(f"{key}.backend", f"this capture is decoded as {backend!r}, the config selects {name!r}")
     cfg.setdefault("port", "capture")
     return cfg
 
@@ -73,10 +84,10 @@ def decode_xsens(path: Path, config: Path | None = None) -> Iterator[dict[str, A
     """
     from capstan.drivers.serial.xsens import XsensConfig, joint_from_mtdata2
     from capstan.drivers.serial.xsens_protocol import (
-        Mid, XbusParser, decode_output_configuration, error_name, parse_mtdata2, xdi_name,
+        CoordSys, Mid, XbusParser, decode_output_configuration, error_name, parse_mtdata2, xdi_name,
     )
 
-    sec = _section(config, "imu")
+    sec = _section(config, "imu", "xsens")
     imu_cfg = XsensConfig.from_mapping(sec) if sec is not None else None
     stats = LinkStats()
     parser = XbusParser(stats)
@@ -105,6 +116,11 @@ def decode_xsens(path: Path, config: Path | None = None) -> Iterator[dict[str, A
                     val = getattr(m, key)
                     if val is not None:
                         rec[key] = val
+                if m.coord_sys is not None:
+                    try:
+                        rec["coord_sys"] = CoordSys(m.coord_sys).name
+                    except ValueError:
+                        rec["coord_sys"] = f"COORD_0x{m.coord_sys:X}"
                 if m.other:
                     rec["other"] = {xdi_name(k): (v.hex(" ") if isinstance(v, bytes) else v)
                                     for k, v in m.other.items()}
@@ -130,7 +146,8 @@ def decode_xsens(path: Path, config: Path | None = None) -> Iterator[dict[str, A
             stats.good_frames += 1
             yield rec
     yield {"summary": True, "bytes": n_bytes, "good_frames": stats.good_frames, "bad_frames": stats.bad_frames,
-           "counter_gaps": stats.counter_gaps, "resyncs": stats.resyncs, "trailing_bytes": parser.buffered}
+           "counter_gaps": stats.counter_gaps, "resyncs": stats.resyncs, "bytes_skipped": stats.bytes_skipped,
+           "trailing_bytes": parser.buffered}
 
 
 def decode_loadcell(path: Path, config: Path | None = None) -> Iterator[dict[str, Any]]:
@@ -142,7 +159,7 @@ def decode_loadcell(path: Path, config: Path | None = None) -> Iterator[dict[str
     from capstan.drivers.serial.loadcell import LoadCellConfig, SerialLoadCells
     from capstan.drivers.serial.loadcell_protocol import LoadCellParser
 
-    sec = _section(config, "load_cells")
+    sec = _section(config, "load_cells", "serial")
     conv = SerialLoadCells(LoadCellConfig.from_mapping(sec)) if sec is not None else None
     parser = LoadCellParser()
     n_bytes = 0
@@ -157,7 +174,7 @@ def decode_loadcell(path: Path, config: Path | None = None) -> Iterator[dict[str
             yield rec
     st = parser.stats
     yield {"summary": True, "bytes": n_bytes, "good_frames": st.good_frames, "bad_frames": st.bad_frames,
-           "resyncs": st.resyncs, "trailing_bytes": parser.buffered}
+           "resyncs": st.resyncs, "bytes_skipped": st.bytes_skipped, "trailing_bytes": parser.buffered}
 
 
 def _text(rec: dict[str, Any]) -> str:
