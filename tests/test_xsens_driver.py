@@ -101,7 +101,9 @@ def test_driver_handshake_and_400hz_samples(pty: PtyPair, kw: dict) -> None:
     assert isinstance(imu, Imu)
     with SimRunner(sim) as run:
         imu.start()
-        assert sim.host_mids[:3] == [Mid.GO_TO_CONFIG, Mid.SET_OUTPUT_CONFIGURATION, Mid.GO_TO_MEASUREMENT]
+        # GoToConfig, SetOutputConfiguration, ReqOutputConfiguration (read-back), GoToMeasurement
+        assert sim.host_mids[:4] == [Mid.GO_TO_CONFIG, Mid.SET_OUTPUT_CONFIGURATION,
+                                     Mid.SET_OUTPUT_CONFIGURATION, Mid.GO_TO_MEASUREMENT]
         good0 = imu.stats.good_frames
         assert imu._fd >= 0  # a real pyserial port: poll() reads the fd directly
         t_start = time.monotonic()
@@ -165,11 +167,18 @@ def test_counter_gaps_and_bad_frames_counted(pty: PtyPair) -> None:
 
 
 def test_start_times_out_without_device(pty: PtyPair) -> None:
-    imu = XsensImu(_cfg(pty, retries=2, timeout_s=0.05))
+    imu = XsensImu(_cfg(pty, retries=2, timeout_s=0.05, baud_search=False))
     t0 = time.monotonic()
-    with pytest.raises(DeviceTimeoutError, match="0x31"):
+    with pytest.raises(DeviceTimeoutError, match="GoToConfig at 921600 Bd.*capstan imu setup"):
         imu.start()
     assert time.monotonic() - t0 < 1.0
+    imu.close()
+
+
+def test_start_without_device_names_every_rate_searched(pty: PtyPair) -> None:
+    imu = XsensImu(_cfg(pty, retries=1, timeout_s=0.02))
+    with pytest.raises(DeviceTimeoutError, match="921600, 115200, 460800, 230400, 57600, 38400, 19200, 9600 Bd"):
+        imu.start()
     imu.close()
 
 
@@ -191,14 +200,16 @@ class ScriptedPort:
         self.written: list[bytes] = []
         self._rx = bytearray()
         self.timeout = 0
+        self.baudrate = 921600
 
     @property
     def in_waiting(self) -> int:
         return len(self._rx)
 
     def write(self, data: bytes) -> int:
+        """Answer by (MID, length byte) if scripted so, else by MID."""
         self.written.append(bytes(data))
-        self._rx += self.replies.get(data[2], b"")
+        self._rx += self.replies.get((data[2], data[3]), self.replies.get(data[2], b""))  # type: ignore[call-overload]
         return len(data)
 
     def read(self, n: int) -> bytes:
@@ -225,17 +236,47 @@ def test_exact_bytes_written_by_driver() -> None:
         # PacketCounter, SampleTimeFine, Quaternion float32 ENU @400, RateOfTurn float32 @400,
         # StatusWord; checksum by hand: sum(FF..FF) = 0xB5F -> CS = 0xA1
         bytes.fromhex("FA FF C0 14 10 20 FF FF 10 60 FF FF 20 10 01 90 80 20 01 90 E0 20 FF FF A1"),
+        bytes.fromhex("FA FF C0 00 41"),  # ReqOutputConfiguration: the read-back
         bytes.fromhex("FA FF 10 00 F1"),
     ]
 
 
-def test_wrong_echo_is_protocol_error() -> None:
-    cfg = XsensConfig(port="scripted")
-    echo = encode_output_configuration([(0x1020, 0xFFFF)])
-    port = ScriptedPort({0x30: bytes.fromhex("FA FF 31 00 D0"),
-                         0xC0: build_message(Mid.OUTPUT_CONFIGURATION, echo)})
-    with pytest.raises(ProtocolError, match="echo"):
-        XsensImu(cfg, port=port).start()
+#: the reference document's own acknowledgement of its 12-item SetOutputConfiguration
+REFERENCE_C1 = bytes.fromhex("FA FF C1 08 10 20 FF FF 10 60 FF FF 9C")
+
+
+def _scripted(readback: list[tuple[int, int]]) -> ScriptedPort:
+    return ScriptedPort({0x30: bytes.fromhex("FA FF 31 00 D0"),
+                         (0xC0, 0x14): REFERENCE_C1,
+                         (0xC0, 0x00): build_message(Mid.OUTPUT_CONFIGURATION,
+                                                     encode_output_configuration(readback)),
+                         0x10: bytes.fromhex("FA FF 11 00 F0")})
+
+
+def test_start_passes_on_the_reference_acknowledgement_bytes() -> None:
+    """The 0xC1 reply of the reference (2 items answering a 12-item request) is accepted;
+    the read-back decides. A device reporting 2000 Hz for 'every packet' items passes."""
+    assert sum(REFERENCE_C1[1:]) & 0xFF == 0
+    readback = [(0x1020, 2000), (0x1060, 0xFFFF), (0x2010, 400), (0x8020, 400), (0xE020, 0),
+                (0xC020, 100)]  # an extra item (magnetic field) is allowed
+    imu = XsensImu(XsensConfig(port="scripted"), port=_scripted(readback))
+    imu.start()
+    assert imu.output_readback == readback and imu.found_baudrate == 921600
+
+
+@pytest.mark.parametrize("readback, named", [
+    ([(0x1020, 0xFFFF), (0x1060, 0xFFFF)], "QUATERNION|FLOAT32|ENU at 400 Hz is missing; "
+                                           "RATE_OF_TURN|FLOAT32 at 400 Hz is missing"),
+    ([(0x1020, 0xFFFF), (0x1060, 0xFFFF), (0x2010, 100), (0x8020, 400), (0xE020, 0xFFFF)],
+     "QUATERNION|FLOAT32|ENU is at 100 Hz, the controller needs 400 Hz"),
+    ([(0x1020, 0xFFFF), (0x1060, 0xFFFF), (0x2014, 400), (0x8020, 400), (0xE020, 0xFFFF)],
+     r"QUATERNION\|FLOAT32\|ENU at 400 Hz is missing \(the device sends QUATERNION\|FLOAT32\|NED\)"),
+    ([(0x1020, 0xFFFF), (0x1060, 0xFFFF), (0x2010, 400), (0x8020, 400), (0xE020, 100)],
+     "STATUS_WORD is at 100 Hz, the controller needs every packet"),
+])
+def test_readback_lacking_what_the_controller_needs_is_named(readback: list, named: str) -> None:
+    with pytest.raises(ProtocolError, match=named if "\\" in named else named.replace("|", r"\|")):
+        XsensImu(XsensConfig(port="scripted"), port=_scripted(readback)).start()
 
 
 # --------------------------------------------------------------------------- mapping, config
@@ -308,3 +349,49 @@ def test_twist_is_exact_for_tilted_mounting() -> None:
         r[1 + axis] = math.sin(theta / 2)
         q = _qmul(q0, tuple(r))
         assert wrap_pi(twist_angle_rad(q, axis) - twist_angle_rad(q0, axis) - theta) == pytest.approx(0.0, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- baud rate search
+
+@pytest.mark.parametrize("boot_bd", [115200, 230400, 921600])
+def test_start_finds_a_device_at_another_rate_and_moves_it(pty: PtyPair, boot_bd: int) -> None:
+    """A simulated MTi booting at ``boot_bd`` (115200: a new unit): start-up finds it,
+    stores 921600 in it (SetBaudrate + Reset), reconnects there and streams 400 Hz."""
+    cfg = _cfg(pty, timeout_s=0.1)
+    sim = SimXsens(pty.master_fd, boot_baudrate=boot_bd)
+    imu = XsensImu(cfg)
+    with SimRunner(sim) as run:
+        imu.start()
+        samples = _collect(imu, 0.2)
+    imu.close()
+    assert imu.found_baudrate == boot_bd
+    assert sim.baudrate == 921600 and sim.stored_baudrate == 921600
+    assert sim.resets == (0 if boot_bd == 921600 else 1)
+    if boot_bd != 921600:
+        assert 0x18 in sim.host_mids and 0x40 in sim.host_mids
+        assert sim.garbled_bytes > 0  # the probe at 921600 really met a device at another rate
+    assert len(samples) > 20
+    for s in samples:
+        q_exp, _ = run.sent[s.counter]
+        assert wrap_pi(s.q_out_rad - q_exp) == pytest.approx(0.0, abs=1e-5)
+    # the next start finds it at the running rate at once, no reset
+    imu2 = XsensImu(cfg)
+    with SimRunner(sim):
+        imu2.start()
+    imu2.close()
+    assert imu2.found_baudrate == 921600 and sim.resets == (0 if boot_bd == 921600 else 1)
+
+
+def test_without_baud_search_a_new_unit_is_refused_with_the_fix(pty: PtyPair) -> None:
+    sim = SimXsens(pty.master_fd, boot_baudrate=115200)
+    imu = XsensImu(_cfg(pty, timeout_s=0.05, retries=1, baud_search=False))
+    with SimRunner(sim):
+        with pytest.raises(DeviceTimeoutError, match="capstan imu setup"):
+            imu.start()
+    imu.close()
+    assert sim.baudrate == 115200 and sim.resets == 0
+
+
+def test_unsupported_baudrate_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="imu.baudrate.*250000 Bd is not a rate SetBaudrate"):
+        XsensConfig.from_mapping({"port": "/dev/x", "baudrate": 250000})

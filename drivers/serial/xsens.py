@@ -1,8 +1,9 @@
 """The :class:`capstan.drivers.interfaces.Imu` for an Xsens MTi on a serial port (pyserial).
 
-``start()`` runs the configuration handshake (GoToConfig -> SetOutputConfiguration ->
-GoToMeasurement, each acknowledged; an Error message 0x42 or a missing ack raises);
-``poll()`` is non-blocking: it reads every available byte, parses every complete
+``start()`` finds the device (configured line rate, else a search of the standard
+rates and a switch of the device to the configured one), sets the output configuration
+and verifies it by read-back, then starts measurement
+(:mod:`capstan.drivers.serial.xsens_startup`); ``poll()`` is non-blocking: it reads every available byte, parses every complete
 frame, counts good/bad frames, counter gaps and resyncs in ``stats`` and returns the
 newest sample.
 
@@ -24,132 +25,20 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any, Mapping
 
 from capstan.drivers.interfaces import ImuSample, LinkStats
 from capstan.drivers.serial.port_io import port_fd, read_available
-from capstan.drivers.serial.xsens_protocol import (
-    FREQ_EVERY_PACKET, LEN_EXTENDED, CoordSys, Mid, MtData2, Precision, XbusParser, Xdi, build_message,
-    decode_output_configuration, encode_output_configuration, error_name, mtdata2_max_len, parse_mtdata2,
+from capstan.drivers.serial.xsens_config import (  # noqa: F401  (re-exported: the driver's settings)
+    BASE_RATE_HZ, JointAxis, OrientationOutput, XsensConfig, output_configuration, packet_size_bytes,
 )
-from capstan.models.common.config_tools import get_choice, get_float, get_int, reject_unknown
-from capstan.models.common.errors import ConfigError, DeviceTimeoutError, DriverError, ProtocolError
+from capstan.drivers.serial.xsens_protocol import (
+    LEN_EXTENDED, MAX_DATA_LEN, Mid, MtData2, XbusParser, mtdata2_max_len, parse_mtdata2,
+)
+from capstan.drivers.serial.xsens_startup import XbusLink, configure_output, find_device, switch_baudrate
+from capstan.models.common.errors import DriverError, ProtocolError
 
 log = logging.getLogger(__name__)
-
-#: device base rate: output frequencies must divide it
-BASE_RATE_HZ = 400
-
-
-class JointAxis(IntEnum):
-    """Sensor axis aligned with the joint axis."""
-
-    X = 0
-    Y = 1
-    Z = 2
-
-
-class OrientationOutput(IntEnum):
-    """Orientation item requested from the device."""
-
-    QUATERNION = 0
-    EULER = 1
-
-
-_PRECISIONS = {"float32": Precision.FLOAT32, "fp1220": Precision.FP1220,
-               "fp1632": Precision.FP1632, "float64": Precision.FLOAT64}
-_COORDS = {"enu": CoordSys.ENU, "ned": CoordSys.NED, "nwu": CoordSys.NWU}
-_KEYS = frozenset({"port", "baudrate", "output_rate_hz", "orientation", "precision",
-                   "coordinates", "joint_axis", "sign", "offset_rad", "timeout_s", "retries"})
-
-
-@dataclass(frozen=True)
-class XsensConfig:
-    """IMU settings (section ``imu`` of ``config/serial_devices.yaml``).
-
-    :ivar port: serial device path, e.g. ``/dev/ttyUSB0`` (or a pty slave path).
-    :ivar baudrate: line rate [Bd]; must carry the configured stream.
-    :ivar output_rate_hz: orientation / rate-of-turn output rate [Hz], divides 400.
-    :ivar orientation: quaternion or Euler angles.
-    :ivar precision: number format of orientation and rate of turn.
-    :ivar coord_sys: coordinate system bits of the orientation item.
-    :ivar joint_axis: sensor axis aligned with the joint.
-    :ivar sign: +1 or -1, joint direction relative to the sensor axis.
-    :ivar offset_rad: joint angle when the twist about the axis is zero [rad].
-    :ivar timeout_s: wait for each acknowledgement [s].
-    :ivar retries: attempts per handshake step.
-    """
-
-    port: str
-    baudrate: int = 921600
-    output_rate_hz: int = 400
-    orientation: OrientationOutput = OrientationOutput.QUATERNION
-    precision: Precision = Precision.FLOAT32
-    coord_sys: CoordSys = CoordSys.ENU
-    joint_axis: JointAxis = JointAxis.Z
-    sign: float = 1.0
-    offset_rad: float = 0.0
-    timeout_s: float = 0.5
-    retries: int = 3
-
-    @classmethod
-    def from_mapping(cls, cfg: Mapping[str, Any], prefix: str = "imu") -> XsensConfig:
-        """Validate a mapping (e.g. the ``imu`` section).
-
-        :raises ConfigError: naming the key and the reason.
-        """
-        reject_unknown(cfg, _KEYS, prefix)
-        if not isinstance(cfg.get("port"), str) or not cfg["port"]:
-            raise ConfigError(f"{prefix}.port", "missing serial device path (string)")
-        sign = get_float(cfg, "sign", prefix, default=1.0)
-        if sign not in (1.0, -1.0):
-            raise ConfigError(f"{prefix}.sign", f"must be 1 or -1, got {sign}")
-        rate = get_int(cfg, "output_rate_hz", prefix, default=400, min_value=1, max_value=BASE_RATE_HZ)
-        if BASE_RATE_HZ % rate:
-            raise ConfigError(f"{prefix}.output_rate_hz", f"must divide {BASE_RATE_HZ}, got {rate}")
-        c = cls(
-            port=cfg["port"],
-            baudrate=get_int(cfg, "baudrate", prefix, default=921600, min_value=9600),
-            output_rate_hz=rate,
-            orientation=OrientationOutput[get_choice(cfg, "orientation", ("quaternion", "euler"),
-                                                     prefix, "quaternion").upper()],
-            precision=_PRECISIONS[get_choice(cfg, "precision", tuple(_PRECISIONS), prefix, "float32")],
-            coord_sys=_COORDS[get_choice(cfg, "coordinates", tuple(_COORDS), prefix, "enu")],
-            joint_axis=JointAxis[get_choice(cfg, "joint_axis", ("x", "y", "z"), prefix, "z").upper()],
-            sign=sign,
-            offset_rad=get_float(cfg, "offset_rad", prefix, default=0.0),
-            timeout_s=get_float(cfg, "timeout_s", prefix, default=0.5, min_value=0.0, min_exclusive=True),
-            retries=get_int(cfg, "retries", prefix, default=3, min_value=1),
-        )
-        need_bd = 10 * packet_size_bytes(c) * c.output_rate_hz
-        if need_bd > c.baudrate:
-            raise ConfigError(f"{prefix}.baudrate", f"{c.baudrate} Bd cannot carry {c.output_rate_hz} Hz "
-                                                    f"packets of {packet_size_bytes(c)} bytes (needs >= {need_bd})")
-        return c
-
-
-def output_configuration(cfg: XsensConfig) -> list[tuple[int, int]]:
-    """The (XDI, frequency) list sent in SetOutputConfiguration."""
-    fmt = int(cfg.precision)
-    orient = Xdi.QUATERNION if cfg.orientation == OrientationOutput.QUATERNION else Xdi.EULER_ANGLES
-    return [
-        (Xdi.PACKET_COUNTER, FREQ_EVERY_PACKET),
-        (Xdi.SAMPLE_TIME_FINE, FREQ_EVERY_PACKET),
-        (orient | fmt | int(cfg.coord_sys), cfg.output_rate_hz),
-        (Xdi.RATE_OF_TURN | fmt, cfg.output_rate_hz),
-        (Xdi.STATUS_WORD, FREQ_EVERY_PACKET),
-    ]
-
-
-def packet_size_bytes(cfg: XsensConfig) -> int:
-    """Bytes of one MTData2 message on the wire with this configuration."""
-    width = {Precision.FLOAT32: 4, Precision.FP1220: 4, Precision.FP1632: 6, Precision.FLOAT64: 8}[cfg.precision]
-    n_orient = 4 if cfg.orientation == OrientationOutput.QUATERNION else 3
-    data = (3 + 2) + (3 + 4) + (3 + n_orient * width) + (3 + 3 * width) + (3 + 4)
-    return 4 + data + 1
-
 
 # --------------------------------------------------------------------------- joint mapping
 
@@ -220,6 +109,8 @@ class XsensImu:
         self._parser = XbusParser(self.stats)
         self._last_counter = -1
         self._out_cfg = output_configuration(config)
+        self.found_baudrate = 0
+        self.output_readback: list[tuple[int, int]] = []
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], prefix: str = "imu") -> XsensImu:
@@ -231,11 +122,20 @@ class XsensImu:
 
     # ----------------------------------------------------------- start-up (may block)
     def start(self) -> None:
-        """Open the port (if needed) and run the configuration handshake.
+        """Open the port (if needed), find the device, configure it, verify, measure.
 
-        :raises DeviceTimeoutError: if an acknowledgement does not arrive in time.
-        :raises ProtocolError: on an Error (0x42) reply or a wrong configuration echo.
-        :raises DriverError: if the port cannot be opened.
+        See :mod:`capstan.drivers.serial.xsens_startup`: GoToConfig at the configured rate
+        (then, with ``baud_search``, at the standard rates, 115200 first; a device found
+        elsewhere is switched to the configured rate, which it stores), output
+        configuration checked by read-back, GoToMeasurement. Afterwards
+        ``found_baudrate`` is the rate the device answered at and ``output_readback``
+        the configuration it reported.
+
+        :raises DeviceTimeoutError: if the device answers at no rate tried, or an
+            acknowledgement does not arrive in time.
+        :raises ProtocolError: on an Error (0x42) reply, or if the read-back lacks an
+            item or rate the controller needs (the message names them).
+        :raises DriverError: if the port cannot be opened or fails.
         """
         if self._port is None:
             import serial  # lazy: only the real backend needs it
@@ -244,68 +144,41 @@ class XsensImu:
                 self._port = serial.Serial(self.config.port, self.config.baudrate, timeout=0)
             except (serial.SerialException, OSError) as exc:
                 raise DriverError(f"cannot open IMU port {self.config.port}: {exc}") from exc
+        cfg = self.config
         try:
             self._port.timeout = 0
             self._fd = port_fd(self._port)
-            self._port.reset_input_buffer()
-            self._parser.reset()
             self._parser.set_limits()  # replies of any length until measurement mode
-            self._request(Mid.GO_TO_CONFIG, b"", Mid.GO_TO_CONFIG_ACK)
-            echo = self._request(Mid.SET_OUTPUT_CONFIGURATION, encode_output_configuration(self._out_cfg),
-                                 Mid.OUTPUT_CONFIGURATION)
-            self._check_echo(echo)
-            self._request(Mid.GO_TO_MEASUREMENT, b"", Mid.GO_TO_MEASUREMENT_ACK)
-            self.bound_stream()
+            link = XbusLink(self._port, self._parser, self.stats, cfg.port, cfg.timeout_s, cfg.retries)
+            self.found_baudrate = find_device(link, cfg)
+            if self.found_baudrate != cfg.baudrate:
+                log.warning("Xsens on %s answered at %d Bd; switching it to %d Bd (stored in the device)",
+                            cfg.port, self.found_baudrate, cfg.baudrate)
+                switch_baudrate(link, cfg.baudrate)
+            self.output_readback = configure_output(link, self._out_cfg)
+            link.request(Mid.GO_TO_MEASUREMENT, b"", Mid.GO_TO_MEASUREMENT_ACK)
+            self.bound_stream(self.output_readback)
         except OSError as exc:  # serial.SerialException derives from OSError
-            raise DriverError(f"IMU port {self.config.port} failed during start-up: {exc}") from exc
+            raise DriverError(f"IMU port {cfg.port} failed during start-up: {exc}") from exc
         self._last_counter = -1
-        log.info("Xsens IMU on %s measuring at %d Hz", self.config.port, self.config.output_rate_hz)
+        log.info("Xsens IMU on %s measuring at %d Hz, %d Bd", cfg.port, cfg.output_rate_hz, cfg.baudrate)
 
     def bound_stream(self, items: list[tuple[int, int]] | None = None) -> None:
         """Bound the parser to what the output configuration can send in measurement mode.
 
         MTData2 longer than all configured items together, and any other message of
-        extended length, is rejected as soon as its length field arrives.
+        extended length, is rejected as soon as its length field arrives. With an item of
+        unknown size in ``items`` the MTData2 bound stays at the protocol maximum.
 
         :param items: the device's output configuration (default: the one requested).
-        :raises ProtocolError: if an item's size is unknown.
         """
-        mt_len = mtdata2_max_len(self._out_cfg if items is None else items)
+        try:
+            mt_len = mtdata2_max_len(self._out_cfg if items is None else items)
+        except ProtocolError as exc:
+            log.warning("Xsens on %s: %s; MTData2 length bounded by the protocol maximum only",
+                        self.config.port, exc)
+            mt_len = MAX_DATA_LEN
         self._parser.set_limits(LEN_EXTENDED - 1, {Mid.MT_DATA2: mt_len})
-
-    def _check_echo(self, data: bytes) -> None:
-        got = decode_output_configuration(data)
-        want = self._out_cfg
-        ok = len(got) == len(want) and all(
-            gx == wx and (gf == wf or (wf == FREQ_EVERY_PACKET and gf in (0, FREQ_EVERY_PACKET)))
-            for (gx, gf), (wx, wf) in zip(got, want))
-        if not ok:
-            raise ProtocolError(f"Xsens output configuration echo {[(hex(x), f) for x, f in got]} "
-                                f"differs from request {[(hex(x), f) for x, f in want]}")
-
-    def _request(self, mid: int, data: bytes, ack: int) -> bytes:
-        msg = build_message(mid, data)
-        for attempt in range(self.config.retries):
-            self._port.write(msg)
-            deadline = time.monotonic() + self.config.timeout_s
-            while True:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    break
-                self._port.timeout = min(remaining, 0.05)
-                chunk = self._port.read(max(1, self._port.in_waiting))
-                self._port.timeout = 0
-                for rmid, rdata in self._parser.feed(chunk):
-                    self.stats.good_frames += 1  # stream packets before the ack are dropped
-                    if rmid == ack:
-                        return rdata
-                    if rmid == Mid.ERROR:
-                        code = rdata[0] if rdata else -1
-                        raise ProtocolError(f"Xsens replied Error {code} ({error_name(code)}) "
-                                            f"to MID 0x{mid:02X}")
-            log.warning("Xsens: no ack 0x%02X to MID 0x%02X (attempt %d)", ack, mid, attempt + 1)
-        raise DeviceTimeoutError(f"Xsens on {self.config.port}: no ack 0x{ack:02X} to MID 0x{mid:02X} "
-                                 f"after {self.config.retries} x {self.config.timeout_s} s")
 
     # ----------------------------------------------------------- per cycle (non-blocking)
     def poll(self) -> ImuSample | None:

@@ -5,10 +5,15 @@ pair (``os.openpty``); the driver opens the slave path with pyserial exactly as 
 would open ``/dev/ttyUSB0``. The simulated rig process drives them:
 
 - :class:`SimXsens` ``service()`` answers host commands without blocking (GoToConfig,
-  SetOutputConfiguration with an echo of the accepted configuration, GoToMeasurement,
-  ReqDID; Error 0x42 for anything unsupported) and ``emit(t, q, dq)`` writes one
-  MTData2 packet in measurement mode, using the same joint mapping as
-  :mod:`capstan.drivers.serial.xsens` (axis, sign, offset).
+  SetOutputConfiguration with an echo of the accepted configuration,
+  ReqOutputConfiguration, GoToMeasurement, ReqDID, SetBaudrate/ReqBaudrate, Reset with
+  WakeUp, WakeUpAck; Error 0x42 for anything unsupported) and ``emit(t, q, dq)`` writes
+  one MTData2 packet in measurement mode, using the same joint mapping as
+  :mod:`capstan.drivers.serial.xsens` (axis, sign, offset). With ``boot_baudrate`` it
+  runs at a line rate of its own, like a real unit (a new MTi boots at 115200 Bd): it
+  reads the rate the host set on the pty (the pair shares one termios) and, while the
+  two differ, ignores the host's bytes and sends framing garbage instead of its
+  messages. SetBaudrate is stored and takes effect at the next Reset.
 - :class:`SimLoadCellAmp` ``emit(tensions_N)`` writes one frame in mV/V, the inverse of
   the driver's ``scale_N_per_mV_V``/``offset_N`` (plus an optional bridge bias that a
   tare removes).
@@ -25,6 +30,7 @@ import math
 import os
 import random
 import struct
+import termios
 import tty
 from dataclasses import dataclass
 from enum import IntEnum
@@ -35,6 +41,7 @@ from capstan.drivers.serial.loadcell_protocol import N_CHANNELS, build_frame
 from capstan.drivers.serial.xsens import (
     BASE_RATE_HZ, JointAxis, XsensConfig, euler_deg_from_quaternion, output_configuration,
 )
+from capstan.drivers.serial.xsens_config import BAUD_CODES, baudrate_of_code
 from capstan.drivers.serial.xsens_protocol import (
     FREQ_EVERY_PACKET, PRECISION_MASK, SAMPLE_TIME_FINE_HZ, XDI_TYPE_MASK, ErrorCode, Mid,
     XbusParser, Xdi, build_message, build_mtdata2_item, decode_output_configuration,
@@ -89,6 +96,10 @@ class SerialFault(IntEnum):
     DROP_COUNTER = 4
 
 
+#: termios speed constant -> line rate [Bd]
+_SPEEDS = {getattr(termios, f"B{bd}"): bd for bd in BAUD_CODES if hasattr(termios, f"B{bd}")}
+
+
 class _Endpoint:
     """Non-blocking byte pipe over a pty master fd, a device path or a pyserial port."""
 
@@ -107,6 +118,16 @@ class _Endpoint:
             self._port = fd_or_port
         self._pending = bytearray()
         self.dropped_bytes = 0
+
+    def line_baudrate(self) -> int | None:
+        """Line rate the host set on the pty [Bd]; None if unknown (not a pty, odd speed)."""
+        if self._fd < 0:
+            return None
+        try:
+            speed = termios.tcgetattr(self._fd)[5]
+        except termios.error:
+            return None
+        return _SPEEDS.get(speed)
 
     def read_available(self) -> bytes:
         if self._port is not None:
@@ -172,6 +193,8 @@ class SimMode(IntEnum):
     MEASUREMENT = 1
 
 
+_SET_BAUDRATE = 0x18
+_RESET = 0x40
 _SUPPORTED = {Xdi.PACKET_COUNTER, Xdi.SAMPLE_TIME_FINE, Xdi.QUATERNION, Xdi.EULER_ANGLES,
               Xdi.RATE_OF_TURN, Xdi.STATUS_WORD}
 
@@ -190,10 +213,14 @@ class SimXsens(_FaultInjector):
     :param offset_rad: as in the driver config [rad].
     :param device_id: reported by ReqDID.
     :param seed: seed of the garbage generator.
+    :param boot_baudrate: line rate the device starts at [Bd] (115200 for a new unit);
+        None: no line-rate emulation (any host rate works, e.g. for non-pty endpoints).
+    :raises ProtocolError: if ``boot_baudrate`` is not a rate SetBaudrate can select.
     """
 
     def __init__(self, fd_or_port: int | str | Any, joint_axis: str | JointAxis = "z", sign: float = 1.0,
-                 offset_rad: float = 0.0, device_id: int = 0x037003F8, seed: int = 0) -> None:
+                 offset_rad: float = 0.0, device_id: int = 0x037003F8, seed: int = 0,
+                 boot_baudrate: int | None = None) -> None:
         super().__init__(seed)
         self._ep = _Endpoint(fd_or_port)
         self.axis = JointAxis[joint_axis.upper()] if isinstance(joint_axis, str) else JointAxis(joint_axis)
@@ -207,15 +234,37 @@ class SimXsens(_FaultInjector):
         self.host_mids: list[int] = []
         self._parser = XbusParser()
         self._n_emitted = 0
+        if boot_baudrate is not None and boot_baudrate not in BAUD_CODES:
+            raise ProtocolError(f"simulated MTi: {boot_baudrate} Bd is not an MTi rate")
+        self.baudrate = boot_baudrate
+        self.stored_baudrate = boot_baudrate
+        self.resets = 0
+        self.garbled_bytes = 0
 
     @classmethod
-    def from_config(cls, fd_or_port: int | str | Any, cfg: Mapping[str, Any], seed: int = 0) -> SimXsens:
+    def from_config(cls, fd_or_port: int | str | Any, cfg: Mapping[str, Any], seed: int = 0,
+                    boot_baudrate: int | None = None) -> SimXsens:
         """Simulated device matching the driver's ``imu`` config section (axis, sign, offset).
 
         :raises ConfigError: on an invalid section.
         """
         c = XsensConfig.from_mapping(cfg)
-        return cls(fd_or_port, c.joint_axis, c.sign, c.offset_rad, seed=seed)
+        return cls(fd_or_port, c.joint_axis, c.sign, c.offset_rad, seed=seed, boot_baudrate=boot_baudrate)
+
+    def line_matches(self) -> bool:
+        """True if the host's line rate is the device's (always, without emulation)."""
+        if self.baudrate is None:
+            return True
+        host = self._ep.line_baudrate()
+        return host is None or host == self.baudrate
+
+    def _send(self, data: bytes) -> None:
+        """Write bytes as the host receives them: garbage at a mismatched line rate."""
+        if not self.line_matches():
+            # a UART sampling at the wrong rate sees framing errors: bytes, but no preamble
+            data = bytes(b if b != 0xFA else 0x7A for b in self.rng.randbytes(len(data)))
+            self.garbled_bytes += len(data)
+        self._ep.write(data)
 
     @property
     def output_rate_hz(self) -> int:
@@ -234,12 +283,16 @@ class SimXsens(_FaultInjector):
         if not data:
             self._ep.flush()
             return
+        if not self.line_matches():
+            self.garbled_bytes += len(data)  # the device's UART sees framing garbage
+            self._parser.reset()
+            return
         for mid, payload in self._parser.feed(data):
             self.host_mids.append(mid)
             self._handle(mid, payload)
 
     def _reply(self, mid: int, data: bytes = b"") -> None:
-        self._ep.write(build_message(mid, data))
+        self._send(build_message(mid, data))
 
     def _error(self, code: ErrorCode) -> None:
         self._reply(Mid.ERROR, bytes((int(code),)))
@@ -253,6 +306,19 @@ class SimXsens(_FaultInjector):
             self._reply(Mid.GO_TO_MEASUREMENT_ACK)
         elif mid == Mid.REQ_DID:
             self._reply(Mid.DEVICE_ID, struct.pack(">I", self.device_id))
+        elif mid == Mid.WAKE_UP_ACK:
+            self.mode = SimMode.CONFIG
+        elif mid == _SET_BAUDRATE and self.mode == SimMode.CONFIG:
+            self._set_baudrate(payload)
+        elif mid == _RESET:
+            self._reply(_RESET + 1)
+            self._ep.flush()
+            self.resets += 1
+            self.baudrate = self.stored_baudrate
+            self.mode = SimMode.MEASUREMENT  # unless the host answers the WakeUp
+            self._reply(Mid.WAKE_UP)
+        elif mid == Mid.SET_OUTPUT_CONFIGURATION and self.mode == SimMode.CONFIG and not payload:
+            self._reply(Mid.OUTPUT_CONFIGURATION, encode_output_configuration(self.output_config))
         elif mid == Mid.SET_OUTPUT_CONFIGURATION and self.mode == SimMode.CONFIG:
             try:
                 items = decode_output_configuration(payload)
@@ -268,6 +334,19 @@ class SimXsens(_FaultInjector):
             self._reply(Mid.OUTPUT_CONFIGURATION, encode_output_configuration(accepted))
         else:
             self._error(ErrorCode.INVALID_MESSAGE)
+
+    def _set_baudrate(self, payload: bytes) -> None:
+        if not payload:  # ReqBaudrate
+            rate = self.baudrate if self.baudrate is not None else 921600
+            self._reply(_SET_BAUDRATE + 1, bytes((BAUD_CODES[rate],)))
+            return
+        rate = baudrate_of_code(payload[0]) if len(payload) == 1 else None
+        if rate is None:
+            self._error(ErrorCode.BAUDRATE_INVALID)
+            return
+        if self.baudrate is not None:
+            self.stored_baudrate = rate  # effective after the next Reset
+        self._reply(_SET_BAUDRATE + 1)
 
     @staticmethod
     def _supported(xdi: int, freq: int) -> bool:
@@ -328,7 +407,7 @@ class SimXsens(_FaultInjector):
         if fault == SerialFault.DROP_COUNTER:
             self.packet_counter = (self.packet_counter + 1) & 0xFFFF
         frame = self.build_packet(sample_time_s, q_out_rad, dq_out_rad_s)
-        self._ep.write(self._damage(frame, fault))
+        self._send(self._damage(frame, fault))
         return True
 
 
