@@ -369,6 +369,7 @@ def test_start_finds_a_device_at_another_rate_and_moves_it(pty: PtyPair, boot_bd
     assert sim.resets == (0 if boot_bd == 921600 else 1)
     if boot_bd != 921600:
         assert 0x18 in sim.host_mids and 0x40 in sim.host_mids
+        assert Mid.WAKE_UP_ACK in sim.host_mids  # answered the WakeUp at the new rate: stays in config
         assert sim.garbled_bytes > 0  # the probe at 921600 really met a device at another rate
     assert len(samples) > 20
     for s in samples:

@@ -25,14 +25,9 @@ frame, dropped packet-counter value).
 
 from __future__ import annotations
 
-import fcntl
 import math
-import os
-import random
 import struct
-import termios
-import tty
-from dataclasses import dataclass
+import time
 from enum import IntEnum
 from typing import Any, Mapping
 
@@ -47,143 +42,14 @@ from capstan.drivers.serial.xsens_protocol import (
     XbusParser, Xdi, build_message, build_mtdata2_item, decode_output_configuration,
     encode_output_configuration, encode_values,
 )
+from capstan.drivers.sim.serial_link import (  # noqa: F401  (re-exported: one import for users)
+    MAX_PENDING_BYTES, DeviceEndpoint, FaultInjector, PtyPair, SerialFault, open_pty_pair,
+)
 from capstan.models.common.errors import ProtocolError
 
-#: bytes a simulated device queues while the reader lags; beyond that frames are dropped
-MAX_PENDING_BYTES = 65536
 STATUS_WORD_OK = 0x00000003  # self-test passed, filter valid
-
-
-@dataclass
-class PtyPair:
-    """A pseudo-terminal pair: the device writes ``master_fd``, the driver opens ``slave_path``.
-
-    ``slave_fd`` is kept open so that the master never sees EIO between driver sessions.
-    """
-
-    master_fd: int
-    slave_fd: int
-    slave_path: str
-
-    def close(self) -> None:
-        """Close both ends (idempotent)."""
-        for fd in (self.master_fd, self.slave_fd):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        self.master_fd = self.slave_fd = -1
-
-
-def open_pty_pair() -> PtyPair:
-    """Open a raw (no echo, no line editing, 8-bit clean), non-blocking pty pair.
-
-    :raises OSError: if the system has no free pseudo-terminal.
-    """
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    fl = fcntl.fcntl(master, fcntl.F_GETFL)
-    fcntl.fcntl(master, fcntl.F_SETFL, fl | os.O_NONBLOCK)
-    return PtyPair(master, slave, os.ttyname(slave))
-
-
-class SerialFault(IntEnum):
-    """Faults a simulated device can inject into its next frames."""
-
-    CORRUPT_CHECKSUM = 1
-    TRUNCATE = 2
-    GARBAGE = 3
-    DROP_COUNTER = 4
-
-
-#: termios speed constant -> line rate [Bd]
-_SPEEDS = {getattr(termios, f"B{bd}"): bd for bd in BAUD_CODES if hasattr(termios, f"B{bd}")}
-
-
-class _Endpoint:
-    """Non-blocking byte pipe over a pty master fd, a device path or a pyserial port."""
-
-    def __init__(self, fd_or_port: int | str | Any) -> None:
-        self._fd = -1
-        self._port: Any = None
-        if isinstance(fd_or_port, int):
-            self._fd = fd_or_port
-            fl = fcntl.fcntl(self._fd, fcntl.F_GETFL)
-            fcntl.fcntl(self._fd, fcntl.F_SETFL, fl | os.O_NONBLOCK)
-        elif isinstance(fd_or_port, str):
-            import serial
-
-            self._port = serial.Serial(fd_or_port, timeout=0)
-        else:
-            self._port = fd_or_port
-        self._pending = bytearray()
-        self.dropped_bytes = 0
-
-    def line_baudrate(self) -> int | None:
-        """Line rate the host set on the pty [Bd]; None if unknown (not a pty, odd speed)."""
-        if self._fd < 0:
-            return None
-        try:
-            speed = termios.tcgetattr(self._fd)[5]
-        except termios.error:
-            return None
-        return _SPEEDS.get(speed)
-
-    def read_available(self) -> bytes:
-        if self._port is not None:
-            n = self._port.in_waiting
-            return self._port.read(n) if n else b""
-        try:
-            return os.read(self._fd, 65536)
-        except (BlockingIOError, InterruptedError):
-            return b""
-        except OSError:  # EIO: no reader/writer on the other side
-            return b""
-
-    def write(self, data: bytes) -> None:
-        if len(self._pending) + len(data) > MAX_PENDING_BYTES:
-            self.dropped_bytes += len(data)
-        else:
-            self._pending += data
-        self.flush()
-
-    def flush(self) -> None:
-        if not self._pending:
-            return
-        if self._port is not None:
-            self._port.write(bytes(self._pending))
-            self._pending.clear()
-            return
-        try:
-            n = os.write(self._fd, self._pending)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            n = len(self._pending)
-            self.dropped_bytes += n
-        del self._pending[:n]
-
-
-class _FaultInjector:
-    def __init__(self, seed: int) -> None:
-        self._faults: list[SerialFault] = []
-        self.rng = random.Random(seed)
-
-    def inject_fault(self, fault: SerialFault, count: int = 1) -> None:
-        """Apply ``fault`` to each of the next ``count`` emitted frames."""
-        self._faults += [SerialFault(fault)] * count
-
-    def _next_fault(self) -> SerialFault | None:
-        return self._faults.pop(0) if self._faults else None
-
-    def _damage(self, frame: bytes, fault: SerialFault | None) -> bytes:
-        if fault == SerialFault.CORRUPT_CHECKSUM:
-            return frame[:-1] + bytes((frame[-1] ^ 0x5A,))
-        if fault == SerialFault.TRUNCATE:
-            return frame[:max(2, len(frame) // 2)]
-        if fault == SerialFault.GARBAGE:
-            return self.rng.randbytes(self.rng.randint(1, 40)) + frame
-        return frame
+#: time from Reset to the WakeUp message at the stored line rate [s]
+REBOOT_S = 0.05
 
 
 class SimMode(IntEnum):
@@ -199,7 +65,7 @@ _SUPPORTED = {Xdi.PACKET_COUNTER, Xdi.SAMPLE_TIME_FINE, Xdi.QUATERNION, Xdi.EULE
               Xdi.RATE_OF_TURN, Xdi.STATUS_WORD}
 
 
-class SimXsens(_FaultInjector):
+class SimXsens(FaultInjector):
     """A simulated Xsens MTi speaking the MT binary protocol.
 
     Starts in measurement mode with the output configuration the driver's defaults
@@ -222,7 +88,7 @@ class SimXsens(_FaultInjector):
                  offset_rad: float = 0.0, device_id: int = 0x037003F8, seed: int = 0,
                  boot_baudrate: int | None = None) -> None:
         super().__init__(seed)
-        self._ep = _Endpoint(fd_or_port)
+        self._ep = DeviceEndpoint(fd_or_port)
         self.axis = JointAxis[joint_axis.upper()] if isinstance(joint_axis, str) else JointAxis(joint_axis)
         self.sign = float(sign)
         self.offset_rad = float(offset_rad)
@@ -240,6 +106,7 @@ class SimXsens(_FaultInjector):
         self.stored_baudrate = boot_baudrate
         self.resets = 0
         self.garbled_bytes = 0
+        self._wake_at_s: float | None = None
 
     @classmethod
     def from_config(cls, fd_or_port: int | str | Any, cfg: Mapping[str, Any], seed: int = 0,
@@ -279,6 +146,13 @@ class SimXsens(_FaultInjector):
 
     def service(self) -> None:
         """Answer pending host commands; never blocks."""
+        if self._wake_at_s is not None:
+            if time.monotonic() < self._wake_at_s:
+                self._ep.read_available()  # rebooting: nobody listens
+                self._ep.flush()
+                return
+            self._wake_at_s = None
+            self._reply(Mid.WAKE_UP)
         data = self._ep.read_available()
         if not data:
             self._ep.flush()
@@ -316,7 +190,7 @@ class SimXsens(_FaultInjector):
             self.resets += 1
             self.baudrate = self.stored_baudrate
             self.mode = SimMode.MEASUREMENT  # unless the host answers the WakeUp
-            self._reply(Mid.WAKE_UP)
+            self._wake_at_s = time.monotonic() + REBOOT_S
         elif mid == Mid.SET_OUTPUT_CONFIGURATION and self.mode == SimMode.CONFIG and not payload:
             self._reply(Mid.OUTPUT_CONFIGURATION, encode_output_configuration(self.output_config))
         elif mid == Mid.SET_OUTPUT_CONFIGURATION and self.mode == SimMode.CONFIG:
@@ -400,7 +274,7 @@ class SimXsens(_FaultInjector):
         :param q_out_rad: joint angle [rad].
         :param dq_out_rad_s: joint rate [rad/s].
         """
-        if self.mode != SimMode.MEASUREMENT:
+        if self.mode != SimMode.MEASUREMENT or self._wake_at_s is not None:
             self._ep.flush()
             return False
         fault = self._next_fault()
@@ -411,7 +285,7 @@ class SimXsens(_FaultInjector):
         return True
 
 
-class SimLoadCellAmp(_FaultInjector):
+class SimLoadCellAmp(FaultInjector):
     """A simulated 4-channel load-cell amplifier streaming binary frames.
 
     :param fd_or_port: pty master fd, device path or pyserial port.
@@ -426,7 +300,7 @@ class SimLoadCellAmp(_FaultInjector):
                  offset_N: tuple[float, ...] | list[float] = (0.0,) * N_CHANNELS,
                  bias_mV_V: tuple[float, ...] | list[float] = (0.0,) * N_CHANNELS, seed: int = 0) -> None:
         super().__init__(seed)
-        self._ep = _Endpoint(fd_or_port)
+        self._ep = DeviceEndpoint(fd_or_port)
         self.scale = tuple(float(s) for s in scale_N_per_mV_V)
         self.offset = tuple(float(o) for o in offset_N)
         self.bias = tuple(float(b) for b in bias_mV_V)

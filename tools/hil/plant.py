@@ -43,6 +43,7 @@ from capstan.controller.runtime import realtime
 from capstan.controller.runtime.realtime import RealtimeMode, RealtimeSettings
 from capstan.controller.runtime.timing import DeadlineSleeper, process_cpu_s
 from capstan.drivers.canopen.cia402 import State402
+from capstan.drivers.serial.xsens_config import BAUD_CODES
 from capstan.models.common.config_tools import get_choice, get_float, get_int, load_yaml, reject_unknown, section
 from capstan.models.common.errors import CapstanError, ConfigError, ModelError
 from capstan.tools.hil.hand import Hand, HandSettings
@@ -63,6 +64,8 @@ class HilSettings:
     :ivar rated_torque_Nm: the simulated drive's rated torque (0x6076) [Nm].
     :ivar realtime: scheduling of the plant process.
     :ivar hand: the hand moving the link (None: no hand).
+    :ivar imu_boot_baudrate: line rate the simulated MTi boots at (``hil.imu.boot_baudrate``,
+        default 115200 like a new unit, so the daemon's start-up searches the rate) [Bd].
     """
 
     period_s: float = 1e-3
@@ -73,11 +76,19 @@ class HilSettings:
     realtime: RealtimeSettings = RealtimeSettings(mode=RealtimeMode.WARN, priority=70, lock_memory=False,
                                                   helper_priority=69)
     hand: HandSettings | None = None
+    imu_boot_baudrate: int = 115200
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], prefix: str = "hil") -> "HilSettings":
         """:raises ConfigError: naming the offending key."""
-        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand"}, prefix)
+        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand", "imu"},
+                       prefix)
+        imu = section(cfg, "imu", prefix, required=False)
+        reject_unknown(imu, {"boot_baudrate"}, f"{prefix}.imu")
+        boot_bd = get_int(imu, "boot_baudrate", f"{prefix}.imu", 115200)
+        if boot_bd not in BAUD_CODES:
+            raise ConfigError(f"{prefix}.imu.boot_baudrate", f"{boot_bd} Bd is not an MTi rate; one of "
+                                                             f"{', '.join(str(b) for b in sorted(BAUD_CODES))}")
         d = HilSettings()
         te = section(cfg, "tau_ext", prefix, required=False)
         reject_unknown(te, {"amplitude_Nm", "frequency_hz"}, f"{prefix}.tau_ext")
@@ -101,6 +112,7 @@ class HilSettings:
                              prio, tuple(cpus), lock_memory=False, gil_switch_interval_s=0.0,
                              helper_priority=prio - 1),
             HandSettings.from_mapping(section(cfg, "hand", prefix), f"{prefix}.hand") if "hand" in cfg else None,
+            boot_bd,
         )
 
 
@@ -129,7 +141,8 @@ class HilPlant:
         lc_cfg = {k: v for k, v in section(cfg, "load_cells").items() if k != "backend"}
         self.imu_pty = open_pty_pair()
         self.lc_pty = open_pty_pair()
-        self.imu = SimXsens.from_config(self.imu_pty.master_fd, {**imu_cfg, "port": self.imu_pty.slave_path})
+        self.imu = SimXsens.from_config(self.imu_pty.master_fd, {**imu_cfg, "port": self.imu_pty.slave_path},
+                                        boot_baudrate=self.settings.imu_boot_baudrate)
         self.cells = SimLoadCellAmp.from_config(self.lc_pty.master_fd, {**lc_cfg, "port": self.lc_pty.slave_path})
         self.channel = channel
         self.bus = can.Bus(interface="capstan_unix", channel=channel)
