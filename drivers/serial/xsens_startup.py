@@ -89,14 +89,14 @@ class XbusLink:
             self.port.timeout = 0
             for rmid, rdata in self.parser.feed(chunk):
                 self.stats.good_frames += 1  # stream packets before the ack are dropped
+                if rmid == Mid.WAKE_UP:
+                    self.port.write(build_message(Mid.WAKE_UP_ACK))
                 if rmid == mid:
                     return rdata
                 if rmid == Mid.ERROR:
                     code = rdata[0] if rdata else -1
                     raise ProtocolError(f"Xsens on {self.name} replied Error {code} ({error_name(code)}) "
                                         f"to MID 0x{request_mid:02X}")
-                if rmid == Mid.WAKE_UP:
-                    self.port.write(build_message(Mid.WAKE_UP_ACK))
 
     def exchange(self, mid: int, data: bytes, ack: int, attempts: int) -> bytes | None:
         """Send ``mid`` up to ``attempts`` times; the acknowledgement's data, None if none came.
