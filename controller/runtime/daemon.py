@@ -32,6 +32,7 @@ import numpy as np
 
 from capstan.controller.runtime import realtime
 from capstan.controller.runtime.config import DaemonConfig
+from capstan.controller.runtime.link_report import device_links, fill_link_stats, link_status, link_summary
 from capstan.controller.runtime.session_log import STATS_DTYPE, LogSink, fill_stats, newest_log, open_session
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
@@ -77,6 +78,8 @@ class RunSummary:
     #: wake-to-wake interval that ended at the faulted cycle [s] (0 without a fault); longer
     #: than a sensor timeout, the process itself was not run (host stall), see :data:`STALL_PERIODS`
     fault_gap_s: float = 0.0
+    #: serial link counters per device (good/bad frames, resyncs, bytes skipped, counter gaps)
+    links: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields."""
@@ -192,6 +195,7 @@ class Daemon:
         n_hist = self.cfg.logging.fault_history_cycles
         hist = np.zeros(n_hist, dtype=rec.dtype)
         stats_buf = np.zeros(1, dtype=STATS_DTYPE)
+        links = device_links(dev)
         writer_ok = True
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
@@ -308,8 +312,11 @@ class Daemon:
             if stats.window_full:
                 rep = stats.take_window()
                 fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped)
+                fill_link_stats(stats_buf, links)
                 sink.push_stats(stats_buf)
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
+                if links:
+                    line += "; links " + link_status(links)
                 log.info("%s", line)
                 note.status(line)
                 if not writer_ok and sink.writer_alive():
@@ -358,6 +365,7 @@ class Daemon:
         self.summary.cpu_s = {k: cpu1[k] - cpu0[k] for k in cpu1 if k in cpu0}
         self.summary.loop_wall_s = time.monotonic() - wall0
         self.summary.missed = sl.missed
+        self.summary.links = link_summary(device_links(self.devices))
         self.summary.overruns = sl.overruns
         self.summary.timing = stats.run_summary()
         self.summary.phase = self.phase.name

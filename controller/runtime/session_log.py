@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from capstan.controller.law.records import LOG_FLOAT32_FIELDS
+from capstan.controller.runtime.link_report import LINK_STATS_FIELDS
 from capstan.controller.runtime.timing import WindowReport
 
 #: one timing-statistics record per window (``/capstan/stats``), µs unless noted
@@ -24,7 +25,7 @@ STATS_DTYPE = np.dtype([
     ("jitter_p50_us", "f8"), ("jitter_p99_us", "f8"), ("jitter_p999_us", "f8"), ("jitter_max_us", "f8"),
     ("latency_p99_us", "f8"), ("compute_p50_us", "f8"), ("compute_p99_us", "f8"),
     ("compute_max_us", "f8"), ("success_rate", "f8"), ("gil_wait_max_us", "f8"),
-])
+] + LINK_STATS_FIELDS)
 
 
 class LogSink(Protocol):

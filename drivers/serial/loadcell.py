@@ -140,6 +140,7 @@ class SerialLoadCells:
             log.info("load cells tared over %d frames: %s N", len(frames),
                      ", ".join(f"{t:.2f}" for t in self.tare_N))
         self.last_raw_mV_V = frames[-1]  # type: ignore[assignment]
+        log.info("load cells on %s streaming at %d Bd", self.config.port, self.config.baudrate)
 
     def _first_frames(self, need: int) -> list[tuple[float, ...]]:
         self._port.timeout = 0

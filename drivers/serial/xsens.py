@@ -161,7 +161,11 @@ class XsensImu:
         except OSError as exc:  # serial.SerialException derives from OSError
             raise DriverError(f"IMU port {cfg.port} failed during start-up: {exc}") from exc
         self._last_counter = -1
-        log.info("Xsens IMU on %s measuring at %d Hz, %d Bd", cfg.port, cfg.output_rate_hz, cfg.baudrate)
+        st = self.stats
+        log.info("Xsens IMU on %s measuring at %d Hz, %d Bd (start-up: %d frames, %d bytes skipped while "
+                 "searching; link counters start now)", cfg.port, cfg.output_rate_hz, cfg.baudrate,
+                 st.good_frames, st.bytes_skipped)
+        st.good_frames = st.bad_frames = st.counter_gaps = st.resyncs = st.bytes_skipped = 0
 
     def bound_stream(self, items: list[tuple[int, int]] | None = None) -> None:
         """Bound the parser to what the output configuration can send in measurement mode.

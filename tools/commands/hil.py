@@ -172,6 +172,7 @@ def summarize(daemon: Daemon | None, plant: Mapping[str, Any], wall_s: float) ->
         "cpu_s": dict(s.cpu_s) if s else {},
         "loop_wall_s": s.loop_wall_s if s else 0.0,
         "threads": list(s.threads) if s else [],
+        "links": dict(s.links) if s else {},
         "plant": dict(plant),
         "wall_s": wall_s,
     }
