@@ -25,7 +25,7 @@ FAKE_HEADERS = [
     bytes.fromhex("FA FF 36 FF 08 00"),  # extended length 2048, the protocol maximum
     bytes.fromhex("FA FF 36 FE"),        # standard length 254, the standard maximum
     bytes.fromhex("FA FF 42 FF 08 00"),  # an Error message of maximal length
-    bytes.fromhex("FA FF 36 31"),        # standard length 49: exactly one float32 packet
+    bytes.fromhex("FA FF 36 35"),        # standard length 53: exactly the float32 packet, at the bound
 ]
 
 
@@ -46,7 +46,7 @@ def _packet(counter: int, q: tuple[float, float, float, float], w: tuple[float, 
 
 def _packet_with_preambles(counter: int, rng: random.Random) -> bytes:
     """A packet whose float bytes contain FA FF and a header claiming the bound (standard length)."""
-    q = struct.unpack(">f", bytes.fromhex("FA FF 36 31"))[0]
+    q = struct.unpack(">f", bytes.fromhex("FA FF 36 35"))[0]
     w = struct.unpack(">f", bytes.fromhex("3F FA FF 36"))[0]
     return _packet(counter, (rng.random(), q, rng.random(), 0.5), (w, rng.random(), -w))
 
