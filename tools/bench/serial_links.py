@@ -5,6 +5,9 @@ A child process plays the simulated MTi (400 Hz MTData2) and the load-cell ampli
 absolute deadlines and times each ``poll()`` with ``perf_counter_ns``. Prints median,
 p99 and max in µs, for calls that decoded a sample and for empty calls.
 
+Also the parser alone: whole packets, packets split in two (look-ahead path) and a
+forged maximal header before every 4th packet, with ratios in the same run.
+
 Run:  .venv/bin/python tools/bench/serial_links.py [--duration 5]
 """
 
@@ -87,6 +90,55 @@ def _decode_only(n: int = 20000) -> None:
           f"load-cell frame {(d_ - c) / n / 1e3:.1f} us")
 
 
+def _parser_paths(n: int = 4000, repeats: int = 7) -> None:
+    """Xbus parser cost per packet (bounded as the driver bounds it) on three streams:
+    whole packets; each packet in two halves (a pending candidate at every feed, so the
+    look-ahead runs); a forged ``FA FF 36 FF 07 FF`` before every 4th packet. Median of
+    ``repeats`` runs, and the ratio to the whole-packet stream measured in the same run."""
+    import statistics
+
+    from capstan.drivers.serial.xsens import XsensConfig, output_configuration
+    from capstan.drivers.serial.xsens_protocol import Mid, XbusParser, mtdata2_max_len
+    from capstan.drivers.sim.serial_devices import SimXsens
+
+    class _Sink:
+        def __init__(self) -> None:
+            self.data = bytearray()
+
+        def write(self, b: bytes) -> int:
+            self.data += b
+            return len(b)
+
+    sink = _Sink()
+    sim = SimXsens(sink)
+    pkts = []
+    for k in range(n):
+        sim.emit(k / 400, math.sin(k / 400), 0.1)
+        pkts.append(bytes(sink.data))
+        sink.data.clear()
+    bound = mtdata2_max_len(output_configuration(XsensConfig(port="-")))
+    forged = bytes.fromhex("FA FF 36 FF 07 FF")
+    streams = {
+        "whole": pkts,
+        "halves": [c for p in pkts for c in (p[:len(p) // 2], p[len(p) // 2:])],
+        "forged/4": [(forged if k % 4 == 0 else b"") + p for k, p in enumerate(pkts)],
+    }
+    med: dict[str, float] = {}
+    for name, chunks in streams.items():
+        runs = []
+        for _ in range(repeats):
+            xp = XbusParser(max_data_len=254, limits={Mid.MT_DATA2: bound})
+            a = time.perf_counter_ns()
+            got = 0
+            for c in chunks:
+                got += len(xp.feed(c))
+            runs.append((time.perf_counter_ns() - a) / n / 1e3)
+            assert got == n, (name, got)
+        med[name] = statistics.median(runs)
+    print("  parser per packet (median of %d x %d packets): " % (repeats, n)
+          + ", ".join(f"{k} {v:.2f} us ({v / med['whole']:.2f}x)" for k, v in med.items()))
+
+
 def main() -> int:
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -125,6 +177,7 @@ def main() -> int:
         for name, ns in timings.items():
             print(f"  poll {name:11s} {_stats(ns)}")
         _decode_only()
+        _parser_paths()
         print(f"  imu  {imu.stats}")
         print(f"  load {cells.stats}")
     finally:
