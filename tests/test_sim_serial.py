@@ -163,3 +163,49 @@ def test_loadcell_amp_inverse_scaling_and_faults(pty: PtyPair) -> None:
     p.feed(struct.pack(">B", 0))  # parser starts hunting
     frames = p.feed(_host_read(pty.slave_fd, 19 * 4))
     assert len(frames) == 3  # garbage-prefixed frame and the last two
+
+
+def _set_host_rate(pty: PtyPair, baudrate: int) -> None:
+    import termios
+
+    attrs = termios.tcgetattr(pty.slave_fd)
+    attrs[4] = attrs[5] = getattr(termios, f"B{baudrate}")
+    termios.tcsetattr(pty.slave_fd, termios.TCSANOW, attrs)
+
+
+def test_new_unit_answers_only_at_its_boot_rate_and_moves_on_reset(pty: PtyPair) -> None:
+    """Bytes of the MT protocol (hand-written): a unit booting at 115200 Bd ignores a
+    GoToConfig sent at 921600 (and the host sees no preamble), answers at 115200; SetBaudrate
+    0x80 (921600) is acknowledged (FA FF 19 00 E8) and applied at Reset: ResetAck at the old
+    rate, WakeUp (FA FF 3E 00 C3) at the new one after the reboot."""
+    sim = SimXsens(pty.master_fd, boot_baudrate=115200)
+    sim.mode = SimMode.CONFIG
+    _set_host_rate(pty, 921600)
+    os.write(pty.slave_fd, bytes.fromhex("FA FF 30 00 D1"))
+    for _ in range(20):
+        sim.service()
+    sim.emit(0.0, 0.0, 0.0)  # config mode: nothing; the line carries no frame either way
+    assert sim.host_mids == [] and sim.garbled_bytes == 5
+    _set_host_rate(pty, 115200)
+    assert _exchange(sim, pty, bytes.fromhex("FA FF 30 00 D1"), 5) == bytes.fromhex("FA FF 31 00 D0")
+    assert _exchange(sim, pty, bytes.fromhex("FA FF 18 01 80 68"), 5) == bytes.fromhex("FA FF 19 00 E8")
+    assert sim.baudrate == 115200 and sim.stored_baudrate == 921600
+    assert _exchange(sim, pty, bytes.fromhex("FA FF 40 00 C1"), 5) == bytes.fromhex("FA FF 41 00 C0")
+    _set_host_rate(pty, 921600)
+    deadline = time.monotonic() + 1.0
+    while not select.select([pty.slave_fd], [], [], 0)[0] and time.monotonic() < deadline:
+        sim.service()
+        time.sleep(0.002)
+    assert _host_read(pty.slave_fd, 5) == bytes.fromhex("FA FF 3E 00 C3")
+    assert sim.baudrate == 921600 and sim.mode == SimMode.MEASUREMENT
+    # an unknown rate code is refused with Error 0x42 BAUDRATE_INVALID (32 = 0x20)
+    _exchange(sim, pty, bytes.fromhex("FA FF 30 00 D1"), 5)
+    assert _exchange(sim, pty, bytes.fromhex("FA FF 18 01 77 71"), 6) == bytes.fromhex("FA FF 42 01 20 9E")
+
+
+def test_req_output_configuration_returns_the_stored_configuration(pty: PtyPair) -> None:
+    sim = SimXsens(pty.master_fd)
+    _exchange(sim, pty, bytes.fromhex("FA FF 30 00 D1"), 5)
+    want = bytes.fromhex("10 20 FF FF 10 60 FF FF 20 10 01 90 80 20 01 90 E0 20 FF FF")
+    reply = _exchange(sim, pty, bytes.fromhex("FA FF C0 00 41"), 4 + len(want) + 1)
+    assert reply == build_message(Mid.OUTPUT_CONFIGURATION, want)
