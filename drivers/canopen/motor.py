@@ -1,14 +1,27 @@
 """The :class:`~capstan.drivers.interfaces.Motor` role on a CANopen CiA 402 drive.
 
 Start-up (blocking, SDO only, through canopen's ``RemoteNode``): required objects
-checked in the EDS, NMT pre-operational, 0x6502 checked for the configured mode,
+checked in the EDS, the drive waited for (boot-up message or SDO polled with back-off
+up to ``boot_timeout_s``, :mod:`~capstan.drivers.canopen.bringup`), NMT pre-operational,
+a FAULT the previous daemon left (heartbeat loss 0x8130) reset and named, any other
+fault refused unless ``fault_reset_at_start``; 0x6502 checked for the configured mode,
 rated torque (0x6076 or configuration), PDO mapping (RPDO1: controlword 0x6040 +
 target torque 0x6071; TPDO1: statusword 0x6041 + mode display 0x6061 + position
 0x6064; TPDO2: velocity 0x606C + torque 0x6077; all SYNC type 1, other PDOs
 disabled), interpolation period 0x60C2, drive heartbeat 0x1017, drive consumer
-heartbeat 0x1016 on the daemon, mode 0x6060 verified on 0x6061, NMT start, then the
-DS402 transitions of :mod:`capstan.drivers.canopen.cia402` towards OPERATION ENABLED, each within its
-timeout, with controlword and SYNC sent cycle by cycle.
+heartbeat 0x1016 on the daemon, safety objects 0x6007/0x1029/0x605A/0x605B/0x6072
+written and read back, mode 0x6060 verified on 0x6061, NMT start, then the DS402
+transitions of :mod:`capstan.drivers.canopen.cia402` towards OPERATION ENABLED, each
+within its timeout, with controlword and SYNC sent cycle by cycle. Every transition
+starts from the statusword read over SDO (never a stale TPDO: a drive that left NMT
+OPERATIONAL sends none), and :meth:`CanopenMotor.enable` succeeds only when a fresh
+0x6041/0x6061 and the drive's heartbeat say OPERATION ENABLED, the mode, NMT OPERATIONAL.
+A failed :meth:`~CanopenMotor.start` releases what it set up, so it can be called again.
+
+Shutdown (:meth:`~CanopenMotor.close`, after the daemon's ramp): disable, disarm the
+drive's consumer heartbeat 0x1016, NMT pre-operational, and only then the daemon's
+heartbeat stops — the drive is left restartable, not faulted. A drive that is gone (no
+heartbeat for 3 periods) is given up within that time, as :class:`DeviceLostError`.
 
 Per cycle (never blocks, no SDO): :meth:`CanopenMotor.write_torque` stages the
 torque, :meth:`~CanopenMotor.send_cycle` sends RPDO1 then SYNC (and the daemon
@@ -21,13 +34,16 @@ Reception: during start-up canopen's notifier thread feeds SDO and a queue of ou
 frames (supervised: a dead thread is a fault). Once the drive is enabled the thread is
 stopped and :meth:`poll` reads the bus itself with non-blocking ``recv(0)``
 (``DIRECT_READ``): no thread that can die silently or be starved of the GIL by a
-busy-waiting loop, and no SDO needed afterwards (disable, quick stop, fault reset and
-re-enable use the RPDO controlword only).
+busy-waiting loop. SDO after that (statusword reads, disarming 0x1016) is sent and
+answered on the same direct path, cycle by cycle (:mod:`~capstan.drivers.canopen.sdo_direct`).
+Statusword bit 11 (internal limit active: the drive capped the command) is counted in
+:attr:`CanopenMotor.internal_limit_cycles` and logged as a warning.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import struct
 import threading
 import time
@@ -37,14 +53,16 @@ from typing import Any, Mapping
 import can
 import canopen
 
+from capstan.drivers.canopen.bringup import recover_fault_at_start, wait_for_boot
 from capstan.drivers.canopen.drive_setup import ObjectMissingError, check_required_objects, configure_drive
+from capstan.drivers.canopen.sdo_direct import parse_reply, request
 from capstan.drivers.canopen.cia402 import (CONTROLWORD, Command402, OpMode, State402, decode_statusword,
                             describe_statusword, path_to)
 from capstan.drivers.canopen.emcy import EmcyFault, decode_emcy
 from capstan.drivers.interfaces import MotorReading
 from capstan.drivers.canopen.config import MotorConfig
-from capstan.models.common.errors import (DeviceTimeoutError, DriveFaultError, DriverError, HeartbeatLostError,
-                           StateTransitionError)
+from capstan.models.common.errors import (DeviceLostError, DeviceTimeoutError, DriveFaultError, DriverError,
+                                          HeartbeatLostError, StateTransitionError)
 
 __all__ = ["CanopenMotor", "ObjectMissingError"]
 
@@ -102,7 +120,20 @@ class CanopenMotor:
         self._expect_enabled = False
         self._hb_last_s: float | None = None
         self._hb_next_s = 0.0
-        self._cobs: tuple[int, int, int, int, int] = (0, 0, 0, 0, 0)
+        #: CAN-IDs of TPDO1, TPDO2, EMCY (-1: none), drive heartbeat, SDO server reply
+        self._cobs: tuple[int, int, int, int, int] = (0, 0, -1, 0, 0)
+        self._sdo_reply: bytes | None = None
+        self._new_tpdo = False
+        #: NMT state in the drive's last heartbeat (None before the first)
+        self.nmt_state: int | None = None
+        #: error code of the FAULT reset at the last start-up (0x8130 after a killed daemon), or None
+        self.recovered_fault: int | None = None
+        #: safety objects as read back at start-up (``{"0x6072": 300, ...}``)
+        self.safety_objects: dict[str, int] = {}
+        #: TPDOs with statusword bit 11 (internal limit active: the drive capped the command)
+        self.internal_limit_cycles = 0
+        self._limit_active = False
+        self._limit_logged_s = -math.inf
         self._rpdo_msg = can.Message(arbitration_id=0x200 + config.node_id, data=bytearray(4),
                                      is_extended_id=False)
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
@@ -119,50 +150,94 @@ class CanopenMotor:
 
     # ================================================================ start-up
     def start(self) -> None:
-        """Configure the drive over SDO, start NMT and bring it to OPERATION ENABLED.
+        """Wait for the drive, configure it over SDO, start NMT and bring it to OPERATION ENABLED.
+
+        After a failure everything set up is released: ``start()`` may be called again.
 
         :raises ObjectMissingError: if the EDS lacks a required object.
-        :raises ConfigError: if the rated torque is unknown or contradicts 0x6076.
-        :raises DriverError: (or a subclass) if a step fails or times out.
+        :raises ConfigError: if the rated torque is unknown or contradicts 0x6076, or 0x60C2/0x6072
+            cannot hold the configured period/limit.
+        :raises DeviceTimeoutError: if the drive does not boot within ``boot_timeout_s``.
+        :raises DriveFaultError: if the drive is in a FAULT it did not get from the daemon's death
+            (code and text named) and ``fault_reset_at_start`` is not set.
+        :raises DriverError: (or a subclass) if a step fails, is refused (object named) or times out.
         """
         cfg = self.config
         od = canopen.import_od(cfg.eds, cfg.node_id)
         check_required_objects(od, cfg.eds)
+        self._reset_session()
         if self._bus is None:
             try:
                 self._bus = can.Bus(interface=cfg.interface, channel=cfg.channel, bitrate=cfg.bitrate)
             except (can.CanError, OSError, ValueError) as exc:
                 raise DriverError(f"cannot open CAN interface {cfg.interface!r} channel "
                                   f"{cfg.channel!r}: {exc}") from exc
+        try:
+            self._start_on_bus(od)
+        except BaseException:
+            self._release()
+            raise
+
+    def _reset_session(self) -> None:
+        self.state = State402.UNKNOWN
+        self.reading = MotorReading()
+        self.tpdo1_received = self.tpdo2_received = 0
+        self._rx.clear()
+        self._direct = self._handover = self._expect_enabled = False
+        self._fault = None
+        self._controlword = self._torque_permille = 0
+        self._hb_last_s = None
+        self.nmt_state = None
+
+    def _start_on_bus(self, od: canopen.ObjectDictionary) -> None:
+        cfg, nid = self.config, self.config.node_id
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = self.NOTIFIER_CYCLE_S
         self.network.connect()
         # python-can 4.x keeps its reader threads in Notifier._readers; supervised by _drain()
         self._rx_threads = [t for t in getattr(self.network.notifier, "_readers", [])
                             if isinstance(t, threading.Thread)]
-        self.node = self.network.add_node(cfg.node_id, od)
+        self.node = self.network.add_node(nid, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.SDO_TIMEOUT_S
-        try:
-            self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
-            done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
-        except canopen.SdoAbortedError as exc:
-            raise DriverError(f"drive {cfg.node_id} refused an SDO during set-up: {exc}") from exc
-        except canopen.SdoCommunicationError as exc:
-            raise DriverError(f"drive {cfg.node_id} did not answer SDO during set-up: {exc}") from exc
-        nid = cfg.node_id
+        wait_for_boot(self.network, self.node, cfg.boot_timeout_s)
+        self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
+        self.recovered_fault = recover_fault_at_start(self.node, cfg)
+        done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
         self.rated_torque_Nm = done.rated_torque_Nm
+        self.safety_objects = done.safety
         self._rpdo_msg.arbitration_id = done.rpdo_cob
-        self._cobs = (done.tpdo1_cob, done.tpdo2_cob, 0x80 + nid, 0x700 + nid, 0)
+        self._cobs = (done.tpdo1_cob, done.tpdo2_cob, done.emcy_cob or -1, 0x700 + nid, 0x580 + nid)
         for cob in self._cobs[:4]:
-            self.network.subscribe(cob, self._on_frame)
+            if cob >= 0:
+                self.network.subscribe(cob, self._on_frame)
         self.node.nmt.send_command(0x01)  # NMT start
         self._wait_first_feedback()
         self.enable()
         if self.DIRECT_READ:
             self._stop_notifier()
 
+    def _release(self) -> None:
+        """Undo start-up: unsubscribe, stop the receive thread, forget the node (bus kept or shut)."""
+        net, self.network = self.network, None
+        self._direct = False
+        if net is None:
+            return
+        for cob in self._cobs[:4]:
+            if self._on_frame in net.subscribers.get(cob, ()):
+                net.unsubscribe(cob, self._on_frame)
+        try:
+            if net.notifier is not None:
+                net.notifier.stop(net.NOTIFIER_SHUTDOWN_TIMEOUT)
+            if self.config.node_id in net:
+                del net[self.config.node_id]
+        except Exception as exc:  # a dead receive thread re-raises its error here
+            logger.warning("drive %d: release: %s", self.config.node_id, exc)
+        if self._own_bus and self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
+
     def _stop_notifier(self) -> None:
-        """Hand reception over from canopen's notifier thread to :meth:`poll` (no SDO after this)."""
+        """Hand reception over from canopen's notifier thread to :meth:`poll`."""
         notifier = self.network.notifier
         if notifier is None:
             return
@@ -184,23 +259,74 @@ class CanopenMotor:
                                          f"{self.FIRST_TPDO_TIMEOUT_S} s of NMT start")
             self._step()
 
+    # ================================================================ SDO now
+    def _sdo_now(self, index: int, sub: int = 0, value: int | None = None) -> int | None:
+        """SDO read (``value`` None) or write, answered now; cyclic frames keep going meanwhile.
+
+        :raises DeviceLostError: if the drive's heartbeat stops while waiting.
+        :raises DeviceTimeoutError: if no answer within :attr:`SDO_TIMEOUT_S`.
+        :raises SdoRefusedError: if the drive aborts (object and abort text named).
+        """
+        obj = self.node.object_dictionary[index]
+        var = obj if isinstance(obj, canopen.objectdictionary.ODVariable) else obj[sub]
+        if not self._direct:
+            from capstan.drivers.canopen.sdo_access import sdo_read, sdo_write
+            if value is None:
+                return sdo_read(self.node, index, sub)
+            sdo_write(self.node, index, sub, value)
+            return None
+        nid = self.config.node_id
+        self._sdo_reply = None
+        try:
+            self._bus.send(can.Message(arbitration_id=0x600 + nid, data=request(var, value),
+                                       is_extended_id=False))
+        except can.CanError as exc:
+            raise DriverError(f"CAN send failed: {exc}") from exc
+        deadline = time.monotonic() + self.SDO_TIMEOUT_S
+        while self._sdo_reply is None:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise DeviceTimeoutError(f"drive {nid}: SDO {'read' if value is None else 'write'} "
+                                         f"0x{index:04X}:{sub:02X}: no answer within {self.SDO_TIMEOUT_S} s")
+            self._step()
+        return parse_reply(var, self._sdo_reply, nid, value is None)
+
+    def _refresh_state(self) -> State402:
+        """Statusword read over SDO now (a drive outside NMT OPERATIONAL sends no TPDO)."""
+        sw = int(self._sdo_now(0x6041))
+        self.reading.statusword = sw
+        self.state = decode_statusword(sw)
+        return self.state
+
+    def _check_alive(self) -> None:
+        """:raises DeviceLostError: if the drive's heartbeat (frames received so far) is older than 3 periods."""
+        self._drain()
+        limit_s = self.HEARTBEAT_LOSS_PERIODS * self.config.drive_heartbeat_period_s
+        if self._hb_last_s is not None and (age := time.monotonic() - self._hb_last_s) > limit_s:
+            raise DeviceLostError(f"drive {self.config.node_id} is gone (device loss): no heartbeat for "
+                                  f"{age * 1000:.0f} ms (limit {limit_s * 1000:.0f} ms)")
+
     # =========================================================== state machine
     def _step(self) -> None:
         """One blocking-phase cycle: send, wait one period, drain (faults latched, not raised)."""
         self.send_cycle()
         time.sleep(self.config.cycle_period_s)
-        self._drain()
+        self._new_tpdo = self._drain()
 
     def _goto(self, target: State402) -> None:
-        """Walk the transition table to ``target``, re-planning after every state change."""
+        """Walk the transition table to ``target`` from the statusword read now, re-planning after
+        every state change; the drive gone is :class:`DeviceLostError` within one heartbeat timeout."""
         self._torque_permille = 0
-        if self.state == State402.UNKNOWN:
-            self._step()
+        self._check_alive()
+        self._refresh_state()
         for _ in range(8):
             if self.state == target:
                 return
             self._wait_automatic()
             path = path_to(self.state, target)
+            if (self.state == State402.QUICK_STOP_ACTIVE and path and path[0].number == 16
+                    and not 5 <= self.config.quick_stop_option <= 8):
+                path = path_to(self.state, State402.SWITCH_ON_DISABLED)  # 16 needs 0x605A 5..8: via 12
             if not path:
                 break
             t = path[0]
@@ -211,11 +337,14 @@ class CanopenMotor:
             timeout_s = self.TRANSITION_TIMEOUT_S.get(t.number, t.timeout_s)
             deadline = time.monotonic() + timeout_s
             while self.state == t.source:
+                self._check_alive()
                 if time.monotonic() > deadline:
                     raise StateTransitionError(
                         f"DS402 transition {t.number} ({t.source.name} -> {t.target.name}) not done in "
                         f"{timeout_s} s; statusword {describe_statusword(self.reading.statusword)}")
                 self._step()
+                if not self._new_tpdo:
+                    self._refresh_state()
             if t.number == 15 and self.state != State402.FAULT:
                 self._fault = None
             if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
@@ -233,31 +362,53 @@ class CanopenMotor:
                     raise StateTransitionError(f"drive stays in {state.name} (automatic transition "
                                                f"{number} not done in {timeout_s} s)")
                 self._step()
+                self._refresh_state()
 
     def enable(self) -> None:
-        """Bring the drive to OPERATION ENABLED (zero torque) and verify the mode on 0x6061.
+        """Bring the drive to OPERATION ENABLED (zero torque), verified on a fresh 0x6041, 0x6061
+        and the drive's heartbeat (NMT OPERATIONAL).
 
-        :raises DriveFaultError: if the drive faults on the way.
-        :raises StateTransitionError: if a transition exceeds its timeout.
+        :raises DriveFaultError: if the drive is or goes in FAULT.
+        :raises StateTransitionError: if a transition exceeds its timeout, or the drive does not
+            show OPERATION ENABLED, the mode and NMT OPERATIONAL afterwards.
+        :raises DeviceLostError: if the drive's heartbeat stops.
         """
         self._drain()
-        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+        nid = self.config.node_id
+        if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
             raise self._fault or DriveFaultError(
-                f"drive {self.config.node_id} is in {self.state.name}; call fault_reset() first")
+                f"drive {nid} is in {self.state.name} ({describe_statusword(self.reading.statusword)}); "
+                f"call fault_reset() first")
         self._goto(State402.OPERATION_ENABLED)
-        if self.reading.mode != int(self.mode):
-            raise StateTransitionError(f"drive enabled but 0x6061 shows mode {self.reading.mode}, "
-                                       f"not {int(self.mode)} ({self.mode.name})")
+        self._step()
+        mode = int(self._sdo_now(0x6061))
+        if self._refresh_state() != State402.OPERATION_ENABLED or mode != int(self.mode) or \
+                self.nmt_state != _NMT_OPERATIONAL:
+            nmt = "none seen" if self.nmt_state is None else f"0x{self.nmt_state:02X}"
+            raise StateTransitionError(
+                f"drive {nid} not enabled: statusword {describe_statusword(self.reading.statusword)}, "
+                f"0x6061 mode {mode} (want {int(self.mode)} {self.mode.name}), NMT state {nmt} "
+                f"(want 0x05 OPERATIONAL)")
+        self.reading.mode = mode
         self._expect_enabled = True
 
     def disable(self) -> None:
-        """Zero torque and shut down to READY TO SWITCH ON (transition 8); best effort, bounded."""
+        """Zero torque and shut down to READY TO SWITCH ON (transition 8); bounded.
+
+        :raises DeviceLostError: if the drive is gone (no heartbeat for 3 periods): given up
+            within that time, not after the transition timeouts.
+        """
         self._expect_enabled = False
         self._torque_permille = 0
-        if self.network is None or self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+        if self.network is None:
             return
         try:
+            self._check_alive()
+            if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+                return  # torque is off; the fault stays for inspection
             self._goto(State402.READY_TO_SWITCH_ON)
+        except DeviceLostError:
+            raise
         except DriverError as exc:
             logger.error("drive %d: disable incomplete: %s", self.config.node_id, exc)
 
@@ -272,10 +423,13 @@ class CanopenMotor:
         timeout_s = self.TRANSITION_TIMEOUT_S[11]
         deadline = time.monotonic() + timeout_s
         while self.state not in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED):
+            self._check_alive()
             if time.monotonic() > deadline:
                 raise StateTransitionError(f"quick stop (transition 11) not done in {timeout_s} s; "
                                            f"statusword {describe_statusword(self.reading.statusword)}")
             self._step()
+            if not self._new_tpdo:
+                self._refresh_state()
 
     def fault_reset(self) -> None:
         """Clear the latched fault and reset the drive (rising edge of controlword bit 7, transition 15).
@@ -285,7 +439,7 @@ class CanopenMotor:
         self._expect_enabled = False
         self._fault = None
         self._drain()
-        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.UNKNOWN):
+        if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.UNKNOWN):
             self._goto(State402.SWITCH_ON_DISABLED)
         self._fault = None
 
@@ -342,7 +496,7 @@ class CanopenMotor:
             if notifier is not None and (notifier.exception is not None or not (
                     self._handover or all(t.is_alive() for t in self._rx_threads))):
                 self._fault = self._fault or DriverError(f"CAN receive thread died: {notifier.exception!r}")
-        tpdo1, tpdo2, emcy, hb, _ = self._cobs
+        tpdo1, tpdo2, emcy, hb, sdo_tx = self._cobs
         rd, new = self.reading, False
         while rx:
             can_id, data, t_s = rx.popleft()
@@ -352,6 +506,10 @@ class CanopenMotor:
                 rd.t_s, new = t_s, True
                 self.tpdo1_received += 1
                 self.state = decode_statusword(rd.statusword)
+                if rd.statusword & 0x0800:
+                    self._on_internal_limit(t_s)
+                else:
+                    self._limit_active = False
             elif can_id == tpdo2 and len(data) >= 6:
                 vel, tq = _TPDO2.unpack_from(data)
                 rd.velocity_rad_s = vel * self.config.velocity_rad_s_per_unit
@@ -360,6 +518,7 @@ class CanopenMotor:
                 self.tpdo2_received += 1
             elif can_id == hb and data:
                 self._hb_last_s = t_s
+                self.nmt_state = data[0]
                 if data[0] != _NMT_OPERATIONAL and self._expect_enabled:
                     self._fault = self._fault or DriveFaultError(
                         f"drive {self.config.node_id} left NMT OPERATIONAL (heartbeat state 0x{data[0]:02X})")
@@ -369,6 +528,8 @@ class CanopenMotor:
                 if not fault.is_reset:
                     logger.error("drive %d: %s", self.config.node_id, fault)
                     self._fault = self._fault or DriveFaultError(f"drive {self.config.node_id}: {fault}")
+            elif can_id == sdo_tx and self._direct:
+                self._sdo_reply = bytes(data)
         if new and self._expect_enabled:
             if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
                 self._fault = self._fault or DriveFaultError(
@@ -381,9 +542,20 @@ class CanopenMotor:
         limit_s = self.HEARTBEAT_LOSS_PERIODS * self.config.drive_heartbeat_period_s
         if self._hb_last_s is not None and time.monotonic() - self._hb_last_s > limit_s:
             self._fault = self._fault or HeartbeatLostError(
-                f"drive {self.config.node_id}: no heartbeat for more than {self.HEARTBEAT_LOSS_PERIODS} "
-                f"periods ({limit_s * 1000:.0f} ms)")
+                f"drive {self.config.node_id} is gone (device loss): no heartbeat for more than "
+                f"{self.HEARTBEAT_LOSS_PERIODS} periods ({limit_s * 1000:.0f} ms)")
         return new
+
+    def _on_internal_limit(self, t_s: float) -> None:
+        """Statusword bit 11: count the TPDO; warn on a rising edge (at most once a second)."""
+        self.internal_limit_cycles += 1
+        if not self._limit_active and t_s - self._limit_logged_s >= 1.0:
+            self._limit_logged_s = t_s
+            logger.warning("drive %d limits the torque (statusword bit 11, internal limit active; "
+                           "0x6072 = %s per mille): command %.3f Nm", self.config.node_id,
+                           self.safety_objects.get("0x6072", "?"),
+                           self._torque_permille * self.rated_torque_Nm / 1000.0)
+        self._limit_active = True
 
     def poll(self) -> MotorReading | None:
         """Drain received frames without blocking; the newest reading or None if no new TPDO.
@@ -401,26 +573,21 @@ class CanopenMotor:
         return self.reading if new else None
 
     def close(self) -> None:
-        """Disable (best effort), put the drive in NMT PRE-OPERATIONAL and release the bus."""
+        """Leave the drive restartable: disable, disarm its consumer heartbeat 0x1016, NMT
+        pre-operational, then stop producing the daemon's heartbeat and release the bus.
+
+        Best effort and bounded: a drive that is gone is given up within one heartbeat
+        timeout (logged); nothing here raises.
+        """
         if self.network is None:
             return
+        nid = self.config.node_id
         try:
-            if self.state == State402.OPERATION_ENABLED:
-                self.disable()
+            self._check_alive()
+            self.disable()
+            self._sdo_now(0x1016, 1, 0)  # disarm before the daemon's heartbeat stops
             self.node.nmt.send_command(0x80)
         except Exception as exc:  # best effort: the bus or the drive may be gone
-            logger.warning("drive %d: close: %s", self.config.node_id, exc)
-        for cob in self._cobs[:4]:
-            if self._on_frame in self.network.subscribers.get(cob, ()):
-                self.network.unsubscribe(cob, self._on_frame)
-        try:
-            if self._own_bus:
-                self.network.disconnect()
-            else:
-                if self.network.notifier is not None:
-                    self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
-                del self.network[self.config.node_id]
-        except Exception as exc:  # a dead receive thread re-raises its error here
-            logger.warning("drive %d: close: %s", self.config.node_id, exc)
-        self.network = None
-
+            logger.warning("drive %d: close: %s; the drive may fault on the lost heartbeat (0x8130), "
+                           "which the next start-up resets", nid, exc)
+        self._release()

@@ -12,7 +12,8 @@ without SocketCAN). The drive
 * sends its SYNC-type TPDOs on every (n-th) SYNC with the PDO mapping the master
   configured, and applies RPDOs with that mapping,
 * watches the master's heartbeat (consumer entries of 0x1016): a missing heartbeat
-  faults the drive (EMCY 0x8130) and zeroes the torque,
+  sends EMCY 0x8130 and reacts as 0x6007 says (1, also without the object: FAULT;
+  2: disable voltage; 3: quick stop; 0: nothing),
 * faults on :meth:`SimDrive.inject_fault` (EMCY with the given code).
 
 Units on the wire: 0x6064 in encoder increments, 0x606C in ``velocity_units_per_rev_s``
@@ -190,7 +191,21 @@ class SimDrive:
                 if last is not None and now_s - last > timeout_s + 1e-6:
                     self._consumer_last_s[node] = None  # re-armed by the next heartbeat
                     logger.warning("node %d: heartbeat of node %d lost", self.node_id, node)
-                    self._fault(EMCY_HEARTBEAT, 0x11)
+                    self._heartbeat_event()
+
+    def _heartbeat_event(self) -> None:
+        """Consumer heartbeat timeout: the reaction 0x6007 asks for (CiA 402-2; 1 where absent)."""
+        option = int(self._value(0x6007, 0)) if self._has(0x6007) else 1
+        if option == 1:
+            self._fault(EMCY_HEARTBEAT, 0x11)
+            return
+        self.network.send_message(0x80 + self.node_id, encode_emcy(EMCY_HEARTBEAT, 0x11))
+        if option == 2 and self.state not in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+            self.state = State402.SWITCH_ON_DISABLED
+        elif option == 3 and self.state == State402.OPERATION_ENABLED:
+            self.state = State402.QUICK_STOP_ACTIVE
+        if self.state != State402.OPERATION_ENABLED:
+            self.target_torque_permille = 0
 
     def _quick_stop_to_disabled(self) -> bool:
         option = int(self._value(0x605A, 0)) if self._has(0x605A) else 2

@@ -185,7 +185,9 @@ class PeerDrive:
         if cob == 0:
             self._on_nmt(data, now)
         elif cob == 0x600 + nid and self.nmt != Nmt.STOPPED:
-            self._send(0x580 + nid, handle_request(data, self.od, self._read, self._write))
+            reply = handle_request(data, self.od, self._read, self._write)
+            if reply is not None:
+                self._send(0x580 + nid, reply)
         elif cob == 0x80 and self.nmt == Nmt.OPERATIONAL:
             self._on_sync()
         elif 0x701 <= cob <= 0x77F and cob - 0x700 in self._consumers():

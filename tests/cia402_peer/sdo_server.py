@@ -35,11 +35,13 @@ def abort_frame(index: int, sub: int, code: int) -> bytes:
 
 
 def handle_request(data: bytes, od: dict[tuple[int, int], Entry],
-                   read: Callable[[Entry], int], write: Callable[[Entry, int], None]) -> bytes:
-    """The response frame to one SDO request (8 bytes)."""
+                   read: Callable[[Entry], int], write: Callable[[Entry, int], None]) -> bytes | None:
+    """The response frame to one SDO request (8 bytes); None for an abort request (no answer)."""
     data = bytes(data).ljust(8, b"\x00")
     ccs = data[0] >> 5
     index, sub = struct.unpack_from("<HB", data, 1)
+    if ccs == 4:
+        return None
     if ccs not in (1, 2):
         return abort_frame(index, sub, ABORT_COMMAND)
     entry = od.get((index, sub))
