@@ -331,9 +331,9 @@ class CanopenMotor:
                 break
             t = path[0]
             if t.command == Command402.FAULT_RESET:
-                self._controlword = 0x0000  # bit 7 low first: a real rising edge
+                self._set_controlword(0x0000)  # bit 7 low first: a real rising edge
                 self._step()
-            self._controlword = CONTROLWORD[t.command]
+            self._set_controlword(CONTROLWORD[t.command])
             timeout_s = self.TRANSITION_TIMEOUT_S.get(t.number, t.timeout_s)
             deadline = time.monotonic() + timeout_s
             while self.state == t.source:
@@ -351,6 +351,13 @@ class CanopenMotor:
                 raise self._fault or DriveFaultError(f"drive fault during transition {t.number}: "
                                                      f"{describe_statusword(self.reading.statusword)}")
         raise StateTransitionError(f"no DS402 path from {self.state.name} to {target.name}")
+
+    def _set_controlword(self, cw: int) -> None:
+        """Controlword for the next RPDO; also over SDO while the drive is not NMT OPERATIONAL
+        (it takes no RPDO then, e.g. after its reaction to a lost heartbeat, 0x1029)."""
+        self._controlword = cw
+        if self.nmt_state is not None and self.nmt_state != _NMT_OPERATIONAL:
+            self._sdo_now(0x6040, 0, cw)
 
     def _wait_automatic(self) -> None:
         """Let the drive finish an automatic transition (1: NOT READY, 14: FAULT REACTION)."""
