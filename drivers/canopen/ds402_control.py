@@ -16,6 +16,7 @@ during start-up, afterwards as single expedited frames on the direct receive pat
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import can
@@ -108,13 +109,23 @@ class Ds402Control:
         self.state = decode_statusword(sw)
         return self.state
 
+    def _begin_wait(self) -> None:
+        """Start of a blocking action: the drive gets one whole heartbeat timeout from now to
+        show a heartbeat (after a host stall its last one is old without the drive being gone)."""
+        self._wait_start_s = time.monotonic()
+
     def _check_alive(self) -> None:
-        """:raises DeviceLostError: if the drive's heartbeat (frames received so far) is older than 3 periods."""
+        """:raises DeviceLostError: if no heartbeat came for 3 drive heartbeat periods, counted from
+            the later of the last heartbeat and :meth:`_begin_wait`."""
         self._drain()
         limit_s = self.HEARTBEAT_LOSS_PERIODS * self.config.drive_heartbeat_period_s
-        if self._hb_last_s is not None and (age := time.monotonic() - self._hb_last_s) > limit_s:
+        if self._hb_last_s is None:
+            return
+        now = time.monotonic()
+        if now - max(self._hb_last_s, getattr(self, "_wait_start_s", -math.inf)) > limit_s:
             raise DeviceLostError(f"drive {self.config.node_id} is gone (device loss): no heartbeat for "
-                                  f"{age * 1000:.0f} ms (limit {limit_s * 1000:.0f} ms)")
+                                  f"{(now - self._hb_last_s) * 1000:.0f} ms, none during "
+                                  f"{limit_s * 1000:.0f} ms (3 periods) of trying to reach it")
 
     # =========================================================== state machine
     def _step(self) -> None:
@@ -190,6 +201,7 @@ class Ds402Control:
             show OPERATION ENABLED, the mode and NMT OPERATIONAL afterwards.
         :raises DeviceLostError: if the drive's heartbeat stops.
         """
+        self._begin_wait()
         self._drain()
         nid = self.config.node_id
         if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
@@ -219,6 +231,7 @@ class Ds402Control:
         self._torque_permille = 0
         if self.network is None:
             return
+        self._begin_wait()
         try:
             self._check_alive()
             if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
@@ -236,6 +249,7 @@ class Ds402Control:
         """
         self._expect_enabled = False
         self._torque_permille = 0
+        self._begin_wait()
         self._controlword = CONTROLWORD[Command402.QUICK_STOP]
         timeout_s = self.TRANSITION_TIMEOUT_S[11]
         deadline = time.monotonic() + timeout_s
@@ -255,6 +269,7 @@ class Ds402Control:
         """
         self._expect_enabled = False
         self._fault = None
+        self._begin_wait()
         self._drain()
         if self._refresh_state() in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.UNKNOWN):
             self._goto(State402.SWITCH_ON_DISABLED)

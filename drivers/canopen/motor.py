@@ -396,6 +396,7 @@ class CanopenMotor(Ds402Control):
         if self.network is None:
             return
         nid = self.config.node_id
+        self._begin_wait()
         try:
             self._check_alive()
             self.disable()
