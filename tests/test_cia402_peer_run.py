@@ -119,5 +119,38 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
         res, summary = _run_to_end(config)
         assert res.returncode == 0, res.stderr[-3000:]
         assert "0x8130" not in res.stderr and summary["faults"] == []
+        # ---- 5. the drive limits the torque itself (statusword bit 11): warned and counted in the
+        # stats records of the log (decoded with a standard protobuf decoder from the logged schema)
+        proc = subprocess.Popen(_argv(config, "--duration", "2.5", "--json"), cwd=REPO, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            lines = _wait_for(proc, "armed after")
+            with peer.lock:
+                peer.od[(0x6072, 0)].value = 1          # derated to 1 per mille behind the master's back
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        err = "".join(lines) + err
+        assert "statusword bit 11, internal limit active" in err, err[-3000:]
+        stats = _stats_records(json.loads(out)["log_path"])
+        assert stats and stats[-1].drive_limit_total > 500, [m.drive_limit_total for m in stats]
     finally:
         rig.close()
+
+
+def _stats_records(path: str) -> list:
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap.reader import make_reader
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        out, cls = [], None
+        for schema, _, msg in reader.iter_messages(topics=["/capstan/stats"]):
+            if cls is None:
+                fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+                pool = descriptor_pool.DescriptorPool()
+                for f in fds.file:
+                    pool.Add(f)
+                cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+            out.append(cls.FromString(msg.data))
+    return out
