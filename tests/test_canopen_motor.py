@@ -324,6 +324,12 @@ def test_quick_stop_and_disable(setup):
     ({"cutoff": 1}, "motor.cutoff"),
     ({"heartbeat_period_s": 0.2, "consumer_timeout_s": 0.1}, "motor.consumer_timeout_s"),
     ({"node_id": 5, "master_node_id": 5}, "motor.master_node_id"),
+    ({"abort_connection_option": 0}, "motor.abort_connection_option"),
+    ({"comm_error_behaviour": 3}, "motor.comm_error_behaviour"),
+    ({"quick_stop_option": 9}, "motor.quick_stop_option"),
+    ({"shutdown_option": True}, "motor.shutdown_option"),
+    ({"fault_reset_at_start": "yes"}, "motor.fault_reset_at_start"),
+    ({"boot_timeout_s": 0.0}, "motor.boot_timeout_s"),
 ])
 def test_bad_configuration_names_the_key(cfg, key):
     with pytest.raises(ConfigError) as err:

@@ -34,6 +34,9 @@ logger = logging.getLogger(__name__)
 HEARTBEAT_ERROR = 0x8130
 #: first and longest pause between SDO polls of a booting drive [s]
 BOOT_BACKOFF_S = (0.05, 1.0)
+#: SDO response timeout while polling a booting drive [s] (short: the boot-up message or the
+#: next poll then ends the wait within about this much after the drive is up)
+BOOT_POLL_SDO_TIMEOUT_S = 0.1
 #: time the drive is given to leave FAULT after the reset edge [s]
 FAULT_RESET_TIMEOUT_S = 1.0
 
@@ -51,6 +54,7 @@ def wait_for_boot(network: canopen.Network, node: canopen.RemoteNode, timeout_s:
         booted.set()  # boot-up (0x00) or the heartbeat of a drive already running
 
     network.subscribe(0x700 + nid, on_heartbeat)
+    sdo_timeout_s, node.sdo.RESPONSE_TIMEOUT = node.sdo.RESPONSE_TIMEOUT, BOOT_POLL_SDO_TIMEOUT_S
     t0 = time.monotonic()
     pause, tries, next_report = BOOT_BACKOFF_S[0], 0, t0 + 1.0
     try:
@@ -82,6 +86,7 @@ def wait_for_boot(network: canopen.Network, node: canopen.RemoteNode, timeout_s:
             else:
                 pause = min(2 * pause, BOOT_BACKOFF_S[1])
     finally:
+        node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
         network.unsubscribe(0x700 + nid, on_heartbeat)
 
 

@@ -150,7 +150,9 @@ class MotorConfig:
             boot_timeout_s=get_float(cfg, "boot_timeout_s", prefix, d.boot_timeout_s, min_value=0.1,
                                      max_value=300.0),
             abort_connection_option=_get_code(cfg, "abort_connection_option", prefix,
-                                              d.abort_connection_option, ABORT_CONNECTION_OPTIONS),
+                                              d.abort_connection_option, ABORT_CONNECTION_OPTIONS,
+                                              " (0 = no action: the drive would keep the last torque "
+                                              "when the daemon dies)"),
             comm_error_behaviour=_get_code(cfg, "comm_error_behaviour", prefix, d.comm_error_behaviour,
                                            (0, 1, 2)),
             quick_stop_option=_get_code(cfg, "quick_stop_option", prefix, d.quick_stop_option,
@@ -174,10 +176,11 @@ def _get_str(cfg: Mapping[str, Any], key: str, prefix: str, default: str) -> str
     return val
 
 
-def _get_code(cfg: Mapping[str, Any], key: str, prefix: str, default: int, allowed: tuple[int, ...]) -> int:
+def _get_code(cfg: Mapping[str, Any], key: str, prefix: str, default: int, allowed: tuple[int, ...],
+              why: str = "") -> int:
     val = cfg.get(key, default)
     if isinstance(val, bool) or not isinstance(val, int) or val not in allowed:
-        raise ConfigError(f"{prefix}.{key}", f"must be one of {', '.join(map(str, allowed))}, got {val!r}")
+        raise ConfigError(f"{prefix}.{key}", f"must be one of {', '.join(map(str, allowed))}, got {val!r}{why}")
     return val
 
 
