@@ -345,3 +345,15 @@ def test_shipped_example_config_builds_the_motor_through_the_registry():
     assert isinstance(motor, CanopenMotor)
     assert motor.config.interface == "socketcan" and motor.config.mode == "cst"
     assert motor.config.eds.endswith("capstan_drive.eds")
+
+
+def test_simulated_drive_caps_at_0x6072_and_reports_bit_11(setup):
+    rig, motor, _ = setup(max_torque_Nm=0.6)
+    motor.start()
+    assert rig.sim._value(0x6072, 0) == 300                       # 0.6 Nm of 2 Nm, read back
+    run_cycles(motor, 20, 0.6)
+    assert rig.sim.torque_command_Nm == pytest.approx(0.6) and motor.internal_limit_cycles == 0
+    with rig.sim._lock:
+        rig.sim._store(0x6072, 0, 100)                            # the drive derates itself
+    run_cycles(motor, 30, 0.6)
+    assert rig.sim.torque_command_Nm == pytest.approx(0.2) and motor.internal_limit_cycles >= 20

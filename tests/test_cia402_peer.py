@@ -272,3 +272,33 @@ def test_with_its_defaults_the_peer_keeps_torque_when_the_master_heartbeat_stops
         bus.shutdown()
         peer.close()
         peer.bus.shutdown()
+
+
+@pytest.mark.parametrize("option, via", [(2, "12"), (6, "16")])
+def test_re_enable_after_quick_stop_follows_0x605A(rig, option, via):
+    """0x605A 0..4 ends in SWITCH ON DISABLED (re-enable via 2, 3, 4); 5..8 stays in QUICK STOP
+    ACTIVE, where transition 16 re-enables; the master plans by the option it wrote."""
+    peer, motor = rig(quick_stop_option=option)
+    motor.start()
+    run_cycles(motor, 10, 0.2)
+    motor.quick_stop()
+    time.sleep(0.05)                                 # the peer ramps over 20 ms
+    run_cycles_no_poll(motor, 30)
+    expected = Ds402.SWITCH_ON_DISABLED if via == "12" else Ds402.QUICK_STOP_ACTIVE
+    assert peer.state == expected
+    motor.enable()
+    assert peer.state == Ds402.OPERATION_ENABLED
+    run_cycles(motor, 10, 0.2)
+    assert peer.applied_torque_permille == 100
+
+
+def run_cycles_no_poll(motor, n):
+    for _ in range(n):
+        motor.send_cycle()
+        time.sleep(0.001)
+
+
+def test_limit_violation_and_device_loss_bits_are_named():
+    from capstan.controller.law.records import FaultBits, fault_names
+    assert fault_names(0x1000) == "LIMIT_VIOLATION"
+    assert fault_names(FaultBits.STALE_MOTOR | FaultBits.DEVICE_LOST) == "STALE_MOTOR|DEVICE_LOST"

@@ -14,6 +14,7 @@ without SocketCAN). The drive
 * watches the master's heartbeat (consumer entries of 0x1016): a missing heartbeat
   sends EMCY 0x8130 and reacts as 0x6007 says (1, also without the object: FAULT;
   2: disable voltage; 3: quick stop; 0: nothing),
+* caps the torque at 0x6072 (max torque) and then sets statusword bit 11,
 * faults on :meth:`SimDrive.inject_fault` (EMCY with the given code).
 
 Units on the wire: 0x6064 in encoder increments, 0x606C in ``velocity_units_per_rev_s``
@@ -154,8 +155,13 @@ class SimDrive:
         with self._lock:
             if (self.nmt_state == NMT_OPERATIONAL and self.state == State402.OPERATION_ENABLED
                     and self.mode_display in _TORQUE_MODES):
-                return self.target_torque_permille * self.rated_torque_Nm / 1000.0
+                lim = self._max_torque_permille()
+                return max(-lim, min(lim, self.target_torque_permille)) * self.rated_torque_Nm / 1000.0
             return 0.0
+
+    def _max_torque_permille(self) -> int:
+        """0x6072 (max torque) [per mille of rated]; no limit where the dictionary lacks it."""
+        return int(self._value(0x6072, 0)) if self._has(0x6072) else 32767
 
     def set_feedback(self, position_rad: float, velocity_rad_s: float, torque_Nm: float) -> None:
         """Motor state of the plant [rad, rad/s, Nm], sent in the next TPDO."""
@@ -359,6 +365,8 @@ class SimDrive:
         sw = STATUSWORD_BITS[self.state] | 0x0200
         if self.state == State402.OPERATION_ENABLED and self.mode_display in _TORQUE_MODES:
             sw |= 0x1000
+            if abs(self.target_torque_permille) > self._max_torque_permille():
+                sw |= 0x0800  # internal limit active: the command is capped at 0x6072
         return sw
 
     def _on_read(self, index: int, subindex: int, od: Any, **_: Any) -> int | None:
