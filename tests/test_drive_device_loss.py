@@ -63,3 +63,51 @@ def test_killed_rig_is_device_loss_with_exit_code_4(tmp_path: Path) -> None:
     faults = [e for e in events if "DEVICE_LOST" in json.dumps(e)]
     assert faults and "device loss" in json.dumps(faults[0])
 
+
+
+class _GoneMotor:
+    """A fake drive that stops answering at poll ``gone_at``: its disable gives up as lost."""
+
+    def __init__(self, journal: list[str], gone_at: int) -> None:
+        from tests.daemon_fakes import FakeMotor
+        self.inner = FakeMotor(journal, hb_lost_at=gone_at)
+        self.disables = 0
+
+    def __getattr__(self, name: str):
+        return getattr(self.inner, name)
+
+    def disable(self) -> None:
+        from capstan.models.common.errors import DeviceLostError
+        self.disables += 1
+        raise DeviceLostError("drive 1 is gone (device loss): no heartbeat for 40 ms, none during 30 ms "
+                              "(3 periods) of trying to reach it")
+
+
+def test_device_loss_in_the_fault_text_bits_and_exit_code(tmp_path: Path, monkeypatch) -> None:
+    from capstan.controller.law.records import FaultBits
+    from capstan.controller.runtime.daemon import Daemon
+    from capstan.controller.runtime.sd_notify import SdNotifier
+    from capstan.controller.runtime.session_log import NullSink
+    from capstan.models.common.errors import ControlFaultError
+    from capstan.tools.commands import run as run_cmd
+    from tests.daemon_fakes import FakeController, config, devices
+
+    journal: list[str] = []
+    motor = _GoneMotor(journal, gone_at=100)
+    sink = NullSink()
+    d = Daemon(config(), devices=devices(journal, motor), controller=FakeController(stale_s=0.05), sink=sink,
+               notifier=SdNotifier({}))
+    with pytest.raises(ControlFaultError) as ei:
+        d.run(duration_s=2.0)
+    assert ei.value.bits & FaultBits.DEVICE_LOST and ei.value.bits & FaultBits.HEARTBEAT_LOST
+    assert ei.value.reason.startswith("HEARTBEAT_LOST|DEVICE_LOST: ")
+    assert "device loss: drive 1 is gone" in ei.value.reason
+    assert sink.faults[-1][2] == ei.value.bits                       # the logged event carries the bits
+
+    class _Daemon:                                                   # capstan run's exit code for it
+        def __init__(self, cfg): self.summary = d.summary
+        def run(self, duration_s=None): raise ei.value
+    monkeypatch.setattr(run_cmd, "Daemon", _Daemon)
+    monkeypatch.setattr(run_cmd.DaemonConfig, "load", staticmethod(lambda path: None))
+    import argparse
+    assert run_cmd.run(argparse.Namespace(config="x.yaml", duration=None, json=True)) == run_cmd.EXIT_DEVICE_LOST == 4
