@@ -302,3 +302,14 @@ def test_limit_violation_and_device_loss_bits_are_named():
     from capstan.controller.law.records import FaultBits, fault_names
     assert fault_names(0x1000) == "LIMIT_VIOLATION"
     assert fault_names(FaultBits.STALE_MOTOR | FaultBits.DEVICE_LOST) == "STALE_MOTOR|DEVICE_LOST"
+
+
+def test_fault_code_from_the_error_history_when_0x603F_is_empty(rig):
+    peer, motor = rig()
+    time.sleep(0.1)
+    peer.inject_fault(0x4310)
+    with peer.lock:
+        peer.od[(0x603F, 0)].value = 0                 # a drive that keeps the code only in 0x1003
+    assert peer.value(0x1003, 0) == 1 and peer.value(0x1003, 1) == 0x4310
+    with pytest.raises(DriveFaultError, match=r"0x4310 \(excess temperature, drive\)"):
+        motor.start()
