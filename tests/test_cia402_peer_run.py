@@ -93,7 +93,7 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
         res, summary = _run_to_end(config)
         assert res.returncode == 0, res.stderr[-3000:]
         assert "FAULT 0x8130 (life guard or heartbeat error)" in res.stderr
-        assert summary["cycles"] >= 900 and summary["faults"] == []
+        assert summary["cycles"] >= 500 and summary["faults"] == []
         assert peer.state == Ds402.READY_TO_SWITCH_ON and peer.value(0x1016, 1) == 0
         # ---- 3. a running daemon stopped with SIGTERM leaves the drive restartable
         n_emcy = len(peer.emcy_sent)
