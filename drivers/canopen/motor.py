@@ -161,6 +161,8 @@ class CanopenMotor(Ds402Control):
         :raises DriverError: (or a subclass) if a step fails, is refused (object named) or times out.
         """
         cfg = self.config
+        if self.network is not None:
+            raise DriverError(f"drive {cfg.node_id}: start() while started; close() first")
         od = canopen.import_od(cfg.eds, cfg.node_id)
         check_required_objects(od, cfg.eds)
         self._reset_session()
@@ -186,6 +188,7 @@ class CanopenMotor(Ds402Control):
         self._controlword = self._torque_permille = 0
         self._hb_last_s = None
         self.nmt_state = None
+        self.recovered_fault = None
 
     def _start_on_bus(self, od: canopen.ObjectDictionary) -> None:
         cfg, nid = self.config, self.config.node_id
