@@ -63,8 +63,11 @@ def test_start_up_sdo_conversation_exact_bytes(setup):
     d = sdo_download
     n = NODE_ID
     expected = [
+        sdo_upload(0x1000, 0),                        # device type: the drive has booted
+        sdo_upload(0x6041, 0),                        # statusword: not in FAULT
         sdo_upload(0x6502, 0),                        # supported modes
         sdo_upload(0x6076, 0),                        # rated torque [mNm]
+        sdo_upload(0x1014, 0),                        # EMCY COB-ID
         # RPDO1: disable, SYNC type 1, mapping controlword + target torque, enable
         sdo_upload(0x1400, 1), d(0x1400, 1, 0x80000200 + n, 4), d(0x1400, 2, 1, 1),
         d(0x1600, 0, 0, 1), d(0x1600, 1, 0x60400010, 4), d(0x1600, 2, 0x60710010, 4), d(0x1600, 0, 2, 1),
@@ -86,14 +89,24 @@ def test_start_up_sdo_conversation_exact_bytes(setup):
         sdo_upload(0x1803, 1), d(0x1803, 1, 0x80000480 + n, 4),
         d(0x60C2, 1, 1, 1), d(0x60C2, 2, 0xFD, 1),    # interpolation period 1 x 10^-3 s
         d(0x1017, 0, 10, 2),                          # drive heartbeat every 10 ms
+        # safety objects, each read back: abort connection option 1 (fault), communication
+        # error -> pre-operational, quick stop option 2, shutdown option 0, max torque 30 Nm
+        d(0x6007, 0, 1, 2), sdo_upload(0x6007, 0), d(0x1029, 1, 0, 1), sdo_upload(0x1029, 1),
+        d(0x605A, 0, 2, 2), sdo_upload(0x605A, 0), d(0x605B, 0, 0, 2), sdo_upload(0x605B, 0),
+        d(0x6072, 0, 15000, 2), sdo_upload(0x6072, 0),
         d(0x6060, 0, 10, 1), sdo_upload(0x6061, 0),   # CST, verified on 0x6061
         d(0x1016, 1, (0x7F << 16) | 50, 4),           # drive watches node 127 with 50 ms
     ]
     requests = spy.ids(SDO_RX)
-    assert requests == expected
+    assert requests[:len(expected)] == expected
+    # then the transitions to OPERATION ENABLED, each planned on the statusword read now,
+    # and the enabled state verified on 0x6041 and 0x6061: uploads only
+    rest = requests[len(expected):]
+    assert sdo_upload(0x6041, 0) in rest and rest[-1] == sdo_upload(0x6041, 0)
+    assert set(rest) == {sdo_upload(0x6041, 0), sdo_upload(0x6061, 0)}
     responses = spy.ids(0x580 + NODE_ID)
-    assert len(responses) == len(expected) and all(r[0] != 0x80 for r in responses)  # no abort
-    assert responses[1] == bytes([0x43, 0x76, 0x60, 0x00, 0xD0, 0x07, 0x00, 0x00])      # 2000 mNm
+    assert len(responses) == len(requests) and all(r[0] != 0x80 for r in responses)  # no abort
+    assert responses[3] == bytes([0x43, 0x76, 0x60, 0x00, 0xD0, 0x07, 0x00, 0x00])      # 2000 mNm
     assert spy.ids(0x000) == [bytes([0x80, n]), bytes([0x01, n])]   # pre-operational, then start
     assert motor.rated_torque_Nm == 2.0
     assert motor.state == State402.OPERATION_ENABLED
@@ -311,6 +324,12 @@ def test_quick_stop_and_disable(setup):
     ({"cutoff": 1}, "motor.cutoff"),
     ({"heartbeat_period_s": 0.2, "consumer_timeout_s": 0.1}, "motor.consumer_timeout_s"),
     ({"node_id": 5, "master_node_id": 5}, "motor.master_node_id"),
+    ({"abort_connection_option": 0}, "motor.abort_connection_option"),
+    ({"comm_error_behaviour": 3}, "motor.comm_error_behaviour"),
+    ({"quick_stop_option": 9}, "motor.quick_stop_option"),
+    ({"shutdown_option": True}, "motor.shutdown_option"),
+    ({"fault_reset_at_start": "yes"}, "motor.fault_reset_at_start"),
+    ({"boot_timeout_s": 0.0}, "motor.boot_timeout_s"),
 ])
 def test_bad_configuration_names_the_key(cfg, key):
     with pytest.raises(ConfigError) as err:
@@ -326,3 +345,15 @@ def test_shipped_example_config_builds_the_motor_through_the_registry():
     assert isinstance(motor, CanopenMotor)
     assert motor.config.interface == "socketcan" and motor.config.mode == "cst"
     assert motor.config.eds.endswith("capstan_drive.eds")
+
+
+def test_simulated_drive_caps_at_0x6072_and_reports_bit_11(setup):
+    rig, motor, _ = setup(max_torque_Nm=0.6)
+    motor.start()
+    assert rig.sim._value(0x6072, 0) == 300                       # 0.6 Nm of 2 Nm, read back
+    run_cycles(motor, 20, 0.6)
+    assert rig.sim.torque_command_Nm == pytest.approx(0.6) and motor.internal_limit_cycles == 0
+    with rig.sim._lock:
+        rig.sim._store(0x6072, 0, 100)                            # the drive derates itself
+    run_cycles(motor, 30, 0.6)
+    assert rig.sim.torque_command_Nm == pytest.approx(0.2) and motor.internal_limit_cycles >= 20

@@ -47,6 +47,8 @@ class FaultBits(IntFlag):
     HEARTBEAT_LOST = 1 << 9       #: drive heartbeat missing
     OVERRUN_STREAK = 1 << 10      #: too many consecutive late cycles
     EXTERNAL_STOP = 1 << 11       #: operator / supervisor requested a stop
+    LIMIT_VIOLATION = 1 << 12     #: joint angle/rate, motor speed or tension outside its limit
+    DEVICE_LOST = 1 << 13         #: a device is gone (drive without heartbeat, rig process dead)
 
 
 #: fields, in order: (name, numpy type, unit / meaning)

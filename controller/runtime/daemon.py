@@ -38,13 +38,14 @@ from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
 from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, process_cpu_s, shared_abs_sleep
 from capstan.drivers.interfaces import DeviceSet
-from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError, DriverError, HeartbeatLostError
+from capstan.models.common.errors import (ControlFaultError, DeviceLostError, DeviceTimeoutError, DriverError,
+                                          HeartbeatLostError)
 
 log = logging.getLogger(__name__)
 
 #: loop-detected limit violation (joint angle/rate, motor speed, tension); bit 12 of the
 #: "outside the step" range of FaultBits
-LIMIT_VIOLATION = 1 << 12
+LIMIT_VIOLATION = int(FaultBits.LIMIT_VIOLATION)
 #: a wake-to-wake interval above this many periods before a fault is named in the fault text
 #: (the loop was not run: on a shared VM, a host stall stops the drive simulator too)
 STALL_PERIODS = 5
@@ -312,6 +313,7 @@ class Daemon:
             if stats.window_full:
                 rep = stats.take_window()
                 fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped)
+                stats_buf["drive_limit_total"] = getattr(motor, "internal_limit_cycles", 0)
                 fill_link_stats(stats_buf, links)
                 sink.push_stats(stats_buf)
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
@@ -342,13 +344,18 @@ class Daemon:
         heartbeat after such a gap mean the process got no CPU, not that a device went quiet.
         """
         self.phase = Phase.FAULTED
+        lost = ""
         try:
             motor.disable()
+        except DeviceLostError as exc:   # no heartbeat during one whole heartbeat timeout of trying
+            bits, lost = bits | FaultBits.DEVICE_LOST, str(exc)
         except DriverError as exc:
             log.error("disabling the drive after the fault failed: %s", exc)
         n = min(cycles, len(hist))
         last = np.roll(hist, -(cycles % len(hist)))[-n:] if cycles >= len(hist) else hist[:n].copy()
         text = f"{fault_names(bits)}: {reason}"
+        if lost and lost not in reason:
+            text += f"; device loss: {lost}"
         self.summary.fault_gap_s = gap_s
         if gap_s > STALL_PERIODS * self.cfg.loop.period_s:
             text += (f"; the loop itself had not run for {gap_s * 1e3:.1f} ms before this cycle "
@@ -357,7 +364,7 @@ class Daemon:
         sink.fault(t_s, text, code=bits, n_cycles=len(hist))
         log.error("FAULT at t=%.3f s: %s (drive disabled; last %d cycles logged)", t_s, text, n)
         self.notifier.status("FAULT " + text)
-        raise ControlFaultError(text, last)
+        raise ControlFaultError(text, last, bits=bits)
 
     def _finish_summary(self, sl: DeadlineSleeper, stats: LoopStats, sink: LogSink,
                         cpu0: dict[str, float], wall0: float) -> None:

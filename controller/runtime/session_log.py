@@ -25,6 +25,8 @@ STATS_DTYPE = np.dtype([
     ("jitter_p50_us", "f8"), ("jitter_p99_us", "f8"), ("jitter_p999_us", "f8"), ("jitter_max_us", "f8"),
     ("latency_p99_us", "f8"), ("compute_p50_us", "f8"), ("compute_p99_us", "f8"),
     ("compute_max_us", "f8"), ("success_rate", "f8"), ("gil_wait_max_us", "f8"),
+    # TPDOs with statusword bit 11 (the drive limited the torque itself), since start
+    ("drive_limit_total", "u8"),
 ] + LINK_STATS_FIELDS)
 
 

@@ -22,7 +22,14 @@ _KEYS = frozenset({
     "mode", "encoder_counts_per_rev", "velocity_units_per_rev_s", "gear_ratio",
     "rated_torque_Nm", "max_torque_Nm", "cycle_period_s", "heartbeat_period_s",
     "drive_heartbeat_period_s", "consumer_timeout_s",
+    "boot_timeout_s", "abort_connection_option", "comm_error_behaviour", "quick_stop_option",
+    "shutdown_option", "fault_reset_at_start",
 })
+
+#: 0x6007 abort connection option codes accepted (CiA 402-2): 1 fault, 2 disable voltage,
+#: 3 quick stop; 0 ("no action") is refused: the drive would keep the last torque when the
+#: daemon dies
+ABORT_CONNECTION_OPTIONS = (1, 2, 3)
 
 MODES = ("cst", "profile_torque")
 
@@ -47,6 +54,17 @@ class MotorConfig:
     :ivar heartbeat_period_s: period of the daemon's own heartbeat [s].
     :ivar drive_heartbeat_period_s: drive heartbeat 0x1017 [s]; lost after 3 periods.
     :ivar consumer_timeout_s: drive-side consumer time 0x1016 watching the daemon [s].
+    :ivar boot_timeout_s: time start-up waits for the drive to boot (boot-up message or an
+        SDO answer, polled with back-off) [s].
+    :ivar abort_connection_option: 0x6007 written at start-up (1 fault, 2 disable voltage,
+        3 quick stop): what the drive does when the daemon's heartbeat stops.
+    :ivar comm_error_behaviour: 0x1029 sub 1 written at start-up (0 pre-operational,
+        1 no state change, 2 stopped) on a communication error.
+    :ivar quick_stop_option: 0x605A written where the drive has it (0..8, CiA 402-2).
+    :ivar shutdown_option: 0x605B written where the drive has it (0 disable at once,
+        1 ramp down then disable).
+    :ivar fault_reset_at_start: reset a drive found in FAULT at start-up whatever the
+        fault (default: only the heartbeat-loss fault 0x8130 the daemon itself caused).
     """
 
     interface: str = "socketcan"
@@ -65,6 +83,12 @@ class MotorConfig:
     heartbeat_period_s: float = 0.02
     drive_heartbeat_period_s: float = 0.01
     consumer_timeout_s: float = 0.1
+    boot_timeout_s: float = 10.0
+    abort_connection_option: int = 1
+    comm_error_behaviour: int = 0
+    quick_stop_option: int = 2
+    shutdown_option: int = 0
+    fault_reset_at_start: bool = False
 
     @property
     def position_rad_per_count(self) -> float:
@@ -123,6 +147,18 @@ class MotorConfig:
                                                d.drive_heartbeat_period_s, min_value=0.001, max_value=65.0),
             consumer_timeout_s=get_float(cfg, "consumer_timeout_s", prefix, d.consumer_timeout_s,
                                          min_value=0.001, max_value=65.0),
+            boot_timeout_s=get_float(cfg, "boot_timeout_s", prefix, d.boot_timeout_s, min_value=0.1,
+                                     max_value=300.0),
+            abort_connection_option=_get_code(cfg, "abort_connection_option", prefix,
+                                              d.abort_connection_option, ABORT_CONNECTION_OPTIONS,
+                                              " (0 = no action: the drive would keep the last torque "
+                                              "when the daemon dies)"),
+            comm_error_behaviour=_get_code(cfg, "comm_error_behaviour", prefix, d.comm_error_behaviour,
+                                           (0, 1, 2)),
+            quick_stop_option=_get_code(cfg, "quick_stop_option", prefix, d.quick_stop_option,
+                                        tuple(range(9))),
+            shutdown_option=_get_code(cfg, "shutdown_option", prefix, d.shutdown_option, (0, 1)),
+            fault_reset_at_start=_get_bool(cfg, "fault_reset_at_start", prefix, d.fault_reset_at_start),
         )
         if out.node_id == out.master_node_id:
             raise ConfigError(f"{prefix}.master_node_id", f"must differ from node_id {out.node_id}")
@@ -137,4 +173,19 @@ def _get_str(cfg: Mapping[str, Any], key: str, prefix: str, default: str) -> str
     val = cfg.get(key, default)
     if not isinstance(val, str) or not val:
         raise ConfigError(f"{prefix}.{key}", f"must be a non-empty string, got {val!r}")
+    return val
+
+
+def _get_code(cfg: Mapping[str, Any], key: str, prefix: str, default: int, allowed: tuple[int, ...],
+              why: str = "") -> int:
+    val = cfg.get(key, default)
+    if isinstance(val, bool) or not isinstance(val, int) or val not in allowed:
+        raise ConfigError(f"{prefix}.{key}", f"must be one of {', '.join(map(str, allowed))}, got {val!r}{why}")
+    return val
+
+
+def _get_bool(cfg: Mapping[str, Any], key: str, prefix: str, default: bool) -> bool:
+    val = cfg.get(key, default)
+    if not isinstance(val, bool):
+        raise ConfigError(f"{prefix}.{key}", f"must be true or false, got {val!r}")
     return val

@@ -1,14 +1,27 @@
 """The :class:`~capstan.drivers.interfaces.Motor` role on a CANopen CiA 402 drive.
 
 Start-up (blocking, SDO only, through canopen's ``RemoteNode``): required objects
-checked in the EDS, NMT pre-operational, 0x6502 checked for the configured mode,
+checked in the EDS, the drive waited for (boot-up message or SDO polled with back-off
+up to ``boot_timeout_s``, :mod:`~capstan.drivers.canopen.bringup`), NMT pre-operational,
+a FAULT the previous daemon left (heartbeat loss 0x8130) reset and named, any other
+fault refused unless ``fault_reset_at_start``; 0x6502 checked for the configured mode,
 rated torque (0x6076 or configuration), PDO mapping (RPDO1: controlword 0x6040 +
 target torque 0x6071; TPDO1: statusword 0x6041 + mode display 0x6061 + position
 0x6064; TPDO2: velocity 0x606C + torque 0x6077; all SYNC type 1, other PDOs
 disabled), interpolation period 0x60C2, drive heartbeat 0x1017, drive consumer
-heartbeat 0x1016 on the daemon, mode 0x6060 verified on 0x6061, NMT start, then the
-DS402 transitions of :mod:`capstan.drivers.canopen.cia402` towards OPERATION ENABLED, each within its
-timeout, with controlword and SYNC sent cycle by cycle.
+heartbeat 0x1016 on the daemon, safety objects 0x6007/0x1029/0x605A/0x605B/0x6072
+written and read back, mode 0x6060 verified on 0x6061, NMT start, then the DS402
+transitions of :mod:`capstan.drivers.canopen.cia402` towards OPERATION ENABLED, each
+within its timeout, with controlword and SYNC sent cycle by cycle. Every transition
+starts from the statusword read over SDO (never a stale TPDO: a drive that left NMT
+OPERATIONAL sends none), and :meth:`CanopenMotor.enable` succeeds only when a fresh
+0x6041/0x6061 and the drive's heartbeat say OPERATION ENABLED, the mode, NMT OPERATIONAL.
+A failed :meth:`~CanopenMotor.start` releases what it set up, so it can be called again.
+
+Shutdown (:meth:`~CanopenMotor.close`, after the daemon's ramp): disable, disarm the
+drive's consumer heartbeat 0x1016, NMT pre-operational, and only then the daemon's
+heartbeat stops — the drive is left restartable, not faulted. A drive that is gone (no
+heartbeat for 3 periods) is given up within that time, as :class:`DeviceLostError`.
 
 Per cycle (never blocks, no SDO): :meth:`CanopenMotor.write_torque` stages the
 torque, :meth:`~CanopenMotor.send_cycle` sends RPDO1 then SYNC (and the daemon
@@ -21,13 +34,16 @@ Reception: during start-up canopen's notifier thread feeds SDO and a queue of ou
 frames (supervised: a dead thread is a fault). Once the drive is enabled the thread is
 stopped and :meth:`poll` reads the bus itself with non-blocking ``recv(0)``
 (``DIRECT_READ``): no thread that can die silently or be starved of the GIL by a
-busy-waiting loop, and no SDO needed afterwards (disable, quick stop, fault reset and
-re-enable use the RPDO controlword only).
+busy-waiting loop. SDO after that (statusword reads, disarming 0x1016) is sent and
+answered on the same direct path, cycle by cycle (:mod:`~capstan.drivers.canopen.sdo_direct`).
+Statusword bit 11 (internal limit active: the drive capped the command) is counted in
+:attr:`CanopenMotor.internal_limit_cycles` and logged as a warning.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import struct
 import threading
 import time
@@ -37,14 +53,14 @@ from typing import Any, Mapping
 import can
 import canopen
 
+from capstan.drivers.canopen.bringup import recover_fault_at_start, wait_for_boot
 from capstan.drivers.canopen.drive_setup import ObjectMissingError, check_required_objects, configure_drive
-from capstan.drivers.canopen.cia402 import (CONTROLWORD, Command402, OpMode, State402, decode_statusword,
-                            describe_statusword, path_to)
+from capstan.drivers.canopen.ds402_control import Ds402Control
+from capstan.drivers.canopen.cia402 import OpMode, State402, decode_statusword, describe_statusword
 from capstan.drivers.canopen.emcy import EmcyFault, decode_emcy
 from capstan.drivers.interfaces import MotorReading
 from capstan.drivers.canopen.config import MotorConfig
-from capstan.models.common.errors import (DeviceTimeoutError, DriveFaultError, DriverError, HeartbeatLostError,
-                           StateTransitionError)
+from capstan.models.common.errors import DeviceTimeoutError, DriveFaultError, DriverError, HeartbeatLostError
 
 __all__ = ["CanopenMotor", "ObjectMissingError"]
 
@@ -58,7 +74,7 @@ _NMT_OPERATIONAL = 0x05
 _MODE = {"cst": OpMode.CYCLIC_SYNC_TORQUE, "profile_torque": OpMode.PROFILE_TORQUE}
 
 
-class CanopenMotor:
+class CanopenMotor(Ds402Control):
     """CiA 402 drive over python-can + canopen; see the module docstring.
 
     :param config: validated motor configuration.
@@ -102,7 +118,20 @@ class CanopenMotor:
         self._expect_enabled = False
         self._hb_last_s: float | None = None
         self._hb_next_s = 0.0
-        self._cobs: tuple[int, int, int, int, int] = (0, 0, 0, 0, 0)
+        #: CAN-IDs of TPDO1, TPDO2, EMCY (-1: none), drive heartbeat, SDO server reply
+        self._cobs: tuple[int, int, int, int, int] = (0, 0, -1, 0, 0)
+        self._sdo_reply: bytes | None = None
+        self._new_tpdo = False
+        #: NMT state in the drive's last heartbeat (None before the first)
+        self.nmt_state: int | None = None
+        #: error code of the FAULT reset at the last start-up (0x8130 after a killed daemon), or None
+        self.recovered_fault: int | None = None
+        #: safety objects as read back at start-up (``{"0x6072": 300, ...}``)
+        self.safety_objects: dict[str, int] = {}
+        #: TPDOs with statusword bit 11 (internal limit active: the drive capped the command)
+        self.internal_limit_cycles = 0
+        self._limit_active = False
+        self._limit_logged_s = -math.inf
         self._rpdo_msg = can.Message(arbitration_id=0x200 + config.node_id, data=bytearray(4),
                                      is_extended_id=False)
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
@@ -119,50 +148,97 @@ class CanopenMotor:
 
     # ================================================================ start-up
     def start(self) -> None:
-        """Configure the drive over SDO, start NMT and bring it to OPERATION ENABLED.
+        """Wait for the drive, configure it over SDO, start NMT and bring it to OPERATION ENABLED.
+
+        After a failure everything set up is released: ``start()`` may be called again.
 
         :raises ObjectMissingError: if the EDS lacks a required object.
-        :raises ConfigError: if the rated torque is unknown or contradicts 0x6076.
-        :raises DriverError: (or a subclass) if a step fails or times out.
+        :raises ConfigError: if the rated torque is unknown or contradicts 0x6076, or 0x60C2/0x6072
+            cannot hold the configured period/limit.
+        :raises DeviceTimeoutError: if the drive does not boot within ``boot_timeout_s``.
+        :raises DriveFaultError: if the drive is in a FAULT it did not get from the daemon's death
+            (code and text named) and ``fault_reset_at_start`` is not set.
+        :raises DriverError: (or a subclass) if a step fails, is refused (object named) or times out.
         """
         cfg = self.config
+        if self.network is not None:
+            raise DriverError(f"drive {cfg.node_id}: start() while started; close() first")
         od = canopen.import_od(cfg.eds, cfg.node_id)
         check_required_objects(od, cfg.eds)
+        self._reset_session()
         if self._bus is None:
             try:
                 self._bus = can.Bus(interface=cfg.interface, channel=cfg.channel, bitrate=cfg.bitrate)
             except (can.CanError, OSError, ValueError) as exc:
                 raise DriverError(f"cannot open CAN interface {cfg.interface!r} channel "
                                   f"{cfg.channel!r}: {exc}") from exc
+        try:
+            self._start_on_bus(od)
+        except BaseException:
+            self._release()
+            raise
+
+    def _reset_session(self) -> None:
+        self.state = State402.UNKNOWN
+        self.reading = MotorReading()
+        self.tpdo1_received = self.tpdo2_received = 0
+        self._rx.clear()
+        self._direct = self._handover = self._expect_enabled = False
+        self._fault = None
+        self._controlword = self._torque_permille = 0
+        self._hb_last_s = None
+        self.nmt_state = None
+        self.recovered_fault = None
+
+    def _start_on_bus(self, od: canopen.ObjectDictionary) -> None:
+        cfg, nid = self.config, self.config.node_id
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = self.NOTIFIER_CYCLE_S
         self.network.connect()
         # python-can 4.x keeps its reader threads in Notifier._readers; supervised by _drain()
         self._rx_threads = [t for t in getattr(self.network.notifier, "_readers", [])
                             if isinstance(t, threading.Thread)]
-        self.node = self.network.add_node(cfg.node_id, od)
+        self.node = self.network.add_node(nid, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.SDO_TIMEOUT_S
-        try:
-            self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
-            done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
-        except canopen.SdoAbortedError as exc:
-            raise DriverError(f"drive {cfg.node_id} refused an SDO during set-up: {exc}") from exc
-        except canopen.SdoCommunicationError as exc:
-            raise DriverError(f"drive {cfg.node_id} did not answer SDO during set-up: {exc}") from exc
-        nid = cfg.node_id
+        wait_for_boot(self.network, self.node, cfg.boot_timeout_s)
+        self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
+        self.recovered_fault = recover_fault_at_start(self.node, cfg)
+        done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
         self.rated_torque_Nm = done.rated_torque_Nm
+        self.safety_objects = done.safety
         self._rpdo_msg.arbitration_id = done.rpdo_cob
-        self._cobs = (done.tpdo1_cob, done.tpdo2_cob, 0x80 + nid, 0x700 + nid, 0)
+        self._cobs = (done.tpdo1_cob, done.tpdo2_cob, done.emcy_cob or -1, 0x700 + nid, 0x580 + nid)
         for cob in self._cobs[:4]:
-            self.network.subscribe(cob, self._on_frame)
+            if cob >= 0:
+                self.network.subscribe(cob, self._on_frame)
         self.node.nmt.send_command(0x01)  # NMT start
         self._wait_first_feedback()
         self.enable()
         if self.DIRECT_READ:
             self._stop_notifier()
 
+    def _release(self) -> None:
+        """Undo start-up: unsubscribe, stop the receive thread, forget the node (bus kept or shut)."""
+        net, self.network = self.network, None
+        self._direct = False
+        if net is None:
+            return
+        for cob in self._cobs[:4]:
+            if self._on_frame in net.subscribers.get(cob, ()):
+                net.unsubscribe(cob, self._on_frame)
+        try:
+            if net.notifier is not None:
+                net.notifier.stop(net.NOTIFIER_SHUTDOWN_TIMEOUT)
+            if self.config.node_id in net:
+                del net[self.config.node_id]
+        except Exception as exc:  # a dead receive thread re-raises its error here
+            logger.warning("drive %d: release: %s", self.config.node_id, exc)
+        if self._own_bus and self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
+
     def _stop_notifier(self) -> None:
-        """Hand reception over from canopen's notifier thread to :meth:`poll` (no SDO after this)."""
+        """Hand reception over from canopen's notifier thread to :meth:`poll`."""
         notifier = self.network.notifier
         if notifier is None:
             return
@@ -183,111 +259,6 @@ class CanopenMotor:
                 raise DeviceTimeoutError(f"drive {self.config.node_id}: no {what} within "
                                          f"{self.FIRST_TPDO_TIMEOUT_S} s of NMT start")
             self._step()
-
-    # =========================================================== state machine
-    def _step(self) -> None:
-        """One blocking-phase cycle: send, wait one period, drain (faults latched, not raised)."""
-        self.send_cycle()
-        time.sleep(self.config.cycle_period_s)
-        self._drain()
-
-    def _goto(self, target: State402) -> None:
-        """Walk the transition table to ``target``, re-planning after every state change."""
-        self._torque_permille = 0
-        if self.state == State402.UNKNOWN:
-            self._step()
-        for _ in range(8):
-            if self.state == target:
-                return
-            self._wait_automatic()
-            path = path_to(self.state, target)
-            if not path:
-                break
-            t = path[0]
-            if t.command == Command402.FAULT_RESET:
-                self._controlword = 0x0000  # bit 7 low first: a real rising edge
-                self._step()
-            self._controlword = CONTROLWORD[t.command]
-            timeout_s = self.TRANSITION_TIMEOUT_S.get(t.number, t.timeout_s)
-            deadline = time.monotonic() + timeout_s
-            while self.state == t.source:
-                if time.monotonic() > deadline:
-                    raise StateTransitionError(
-                        f"DS402 transition {t.number} ({t.source.name} -> {t.target.name}) not done in "
-                        f"{timeout_s} s; statusword {describe_statusword(self.reading.statusword)}")
-                self._step()
-            if t.number == 15 and self.state != State402.FAULT:
-                self._fault = None
-            if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
-                raise self._fault or DriveFaultError(f"drive fault during transition {t.number}: "
-                                                     f"{describe_statusword(self.reading.statusword)}")
-        raise StateTransitionError(f"no DS402 path from {self.state.name} to {target.name}")
-
-    def _wait_automatic(self) -> None:
-        """Let the drive finish an automatic transition (1: NOT READY, 14: FAULT REACTION)."""
-        for number, state in ((1, State402.NOT_READY_TO_SWITCH_ON), (14, State402.FAULT_REACTION_ACTIVE)):
-            timeout_s = self.TRANSITION_TIMEOUT_S[number]
-            deadline = time.monotonic() + timeout_s
-            while self.state == state:
-                if time.monotonic() > deadline:
-                    raise StateTransitionError(f"drive stays in {state.name} (automatic transition "
-                                               f"{number} not done in {timeout_s} s)")
-                self._step()
-
-    def enable(self) -> None:
-        """Bring the drive to OPERATION ENABLED (zero torque) and verify the mode on 0x6061.
-
-        :raises DriveFaultError: if the drive faults on the way.
-        :raises StateTransitionError: if a transition exceeds its timeout.
-        """
-        self._drain()
-        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
-            raise self._fault or DriveFaultError(
-                f"drive {self.config.node_id} is in {self.state.name}; call fault_reset() first")
-        self._goto(State402.OPERATION_ENABLED)
-        if self.reading.mode != int(self.mode):
-            raise StateTransitionError(f"drive enabled but 0x6061 shows mode {self.reading.mode}, "
-                                       f"not {int(self.mode)} ({self.mode.name})")
-        self._expect_enabled = True
-
-    def disable(self) -> None:
-        """Zero torque and shut down to READY TO SWITCH ON (transition 8); best effort, bounded."""
-        self._expect_enabled = False
-        self._torque_permille = 0
-        if self.network is None or self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
-            return
-        try:
-            self._goto(State402.READY_TO_SWITCH_ON)
-        except DriverError as exc:
-            logger.error("drive %d: disable incomplete: %s", self.config.node_id, exc)
-
-    def quick_stop(self) -> None:
-        """Command QUICK STOP (transition 11) and wait until the drive reports it (or SWITCH ON DISABLED).
-
-        :raises StateTransitionError: if the drive does not react in time.
-        """
-        self._expect_enabled = False
-        self._torque_permille = 0
-        self._controlword = CONTROLWORD[Command402.QUICK_STOP]
-        timeout_s = self.TRANSITION_TIMEOUT_S[11]
-        deadline = time.monotonic() + timeout_s
-        while self.state not in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED):
-            if time.monotonic() > deadline:
-                raise StateTransitionError(f"quick stop (transition 11) not done in {timeout_s} s; "
-                                           f"statusword {describe_statusword(self.reading.statusword)}")
-            self._step()
-
-    def fault_reset(self) -> None:
-        """Clear the latched fault and reset the drive (rising edge of controlword bit 7, transition 15).
-
-        :raises StateTransitionError: if the drive stays in FAULT.
-        """
-        self._expect_enabled = False
-        self._fault = None
-        self._drain()
-        if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.UNKNOWN):
-            self._goto(State402.SWITCH_ON_DISABLED)
-        self._fault = None
 
     # ================================================================ per cycle
     def write_torque(self, torque_Nm: float) -> None:
@@ -342,7 +313,7 @@ class CanopenMotor:
             if notifier is not None and (notifier.exception is not None or not (
                     self._handover or all(t.is_alive() for t in self._rx_threads))):
                 self._fault = self._fault or DriverError(f"CAN receive thread died: {notifier.exception!r}")
-        tpdo1, tpdo2, emcy, hb, _ = self._cobs
+        tpdo1, tpdo2, emcy, hb, sdo_tx = self._cobs
         rd, new = self.reading, False
         while rx:
             can_id, data, t_s = rx.popleft()
@@ -352,6 +323,10 @@ class CanopenMotor:
                 rd.t_s, new = t_s, True
                 self.tpdo1_received += 1
                 self.state = decode_statusword(rd.statusword)
+                if rd.statusword & 0x0800:
+                    self._on_internal_limit(t_s)
+                else:
+                    self._limit_active = False
             elif can_id == tpdo2 and len(data) >= 6:
                 vel, tq = _TPDO2.unpack_from(data)
                 rd.velocity_rad_s = vel * self.config.velocity_rad_s_per_unit
@@ -360,6 +335,7 @@ class CanopenMotor:
                 self.tpdo2_received += 1
             elif can_id == hb and data:
                 self._hb_last_s = t_s
+                self.nmt_state = data[0]
                 if data[0] != _NMT_OPERATIONAL and self._expect_enabled:
                     self._fault = self._fault or DriveFaultError(
                         f"drive {self.config.node_id} left NMT OPERATIONAL (heartbeat state 0x{data[0]:02X})")
@@ -369,6 +345,8 @@ class CanopenMotor:
                 if not fault.is_reset:
                     logger.error("drive %d: %s", self.config.node_id, fault)
                     self._fault = self._fault or DriveFaultError(f"drive {self.config.node_id}: {fault}")
+            elif can_id == sdo_tx and self._direct:
+                self._sdo_reply = bytes(data)
         if new and self._expect_enabled:
             if self.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
                 self._fault = self._fault or DriveFaultError(
@@ -381,9 +359,20 @@ class CanopenMotor:
         limit_s = self.HEARTBEAT_LOSS_PERIODS * self.config.drive_heartbeat_period_s
         if self._hb_last_s is not None and time.monotonic() - self._hb_last_s > limit_s:
             self._fault = self._fault or HeartbeatLostError(
-                f"drive {self.config.node_id}: no heartbeat for more than {self.HEARTBEAT_LOSS_PERIODS} "
-                f"periods ({limit_s * 1000:.0f} ms)")
+                f"drive {self.config.node_id} is gone (device loss): no heartbeat for more than "
+                f"{self.HEARTBEAT_LOSS_PERIODS} periods ({limit_s * 1000:.0f} ms)")
         return new
+
+    def _on_internal_limit(self, t_s: float) -> None:
+        """Statusword bit 11: count the TPDO; warn on a rising edge (at most once a second)."""
+        self.internal_limit_cycles += 1
+        if not self._limit_active and t_s - self._limit_logged_s >= 1.0:
+            self._limit_logged_s = t_s
+            logger.warning("drive %d limits the torque (statusword bit 11, internal limit active; "
+                           "0x6072 = %s per mille): command %.3f Nm", self.config.node_id,
+                           self.safety_objects.get("0x6072", "?"),
+                           self._torque_permille * self.rated_torque_Nm / 1000.0)
+        self._limit_active = True
 
     def poll(self) -> MotorReading | None:
         """Drain received frames without blocking; the newest reading or None if no new TPDO.
@@ -401,26 +390,22 @@ class CanopenMotor:
         return self.reading if new else None
 
     def close(self) -> None:
-        """Disable (best effort), put the drive in NMT PRE-OPERATIONAL and release the bus."""
+        """Leave the drive restartable: disable, disarm its consumer heartbeat 0x1016, NMT
+        pre-operational, then stop producing the daemon's heartbeat and release the bus.
+
+        Best effort and bounded: a drive that is gone is given up within one heartbeat
+        timeout (logged); nothing here raises.
+        """
         if self.network is None:
             return
+        nid = self.config.node_id
+        self._begin_wait()
         try:
-            if self.state == State402.OPERATION_ENABLED:
-                self.disable()
+            self._check_alive()
+            self.disable()
+            self._sdo_now(0x1016, 1, 0)  # disarm before the daemon's heartbeat stops
             self.node.nmt.send_command(0x80)
         except Exception as exc:  # best effort: the bus or the drive may be gone
-            logger.warning("drive %d: close: %s", self.config.node_id, exc)
-        for cob in self._cobs[:4]:
-            if self._on_frame in self.network.subscribers.get(cob, ()):
-                self.network.unsubscribe(cob, self._on_frame)
-        try:
-            if self._own_bus:
-                self.network.disconnect()
-            else:
-                if self.network.notifier is not None:
-                    self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
-                del self.network[self.config.node_id]
-        except Exception as exc:  # a dead receive thread re-raises its error here
-            logger.warning("drive %d: close: %s", self.config.node_id, exc)
-        self.network = None
-
+            logger.warning("drive %d: close: %s; the drive may fault on the lost heartbeat (0x8130), "
+                           "which the next start-up resets", nid, exc)
+        self._release()

@@ -12,7 +12,9 @@ without SocketCAN). The drive
 * sends its SYNC-type TPDOs on every (n-th) SYNC with the PDO mapping the master
   configured, and applies RPDOs with that mapping,
 * watches the master's heartbeat (consumer entries of 0x1016): a missing heartbeat
-  faults the drive (EMCY 0x8130) and zeroes the torque,
+  sends EMCY 0x8130 and reacts as 0x6007 says (1, also without the object: FAULT;
+  2: disable voltage; 3: quick stop; 0: nothing),
+* caps the torque at 0x6072 (max torque) and then sets statusword bit 11,
 * faults on :meth:`SimDrive.inject_fault` (EMCY with the given code).
 
 Units on the wire: 0x6064 in encoder increments, 0x606C in ``velocity_units_per_rev_s``
@@ -153,8 +155,13 @@ class SimDrive:
         with self._lock:
             if (self.nmt_state == NMT_OPERATIONAL and self.state == State402.OPERATION_ENABLED
                     and self.mode_display in _TORQUE_MODES):
-                return self.target_torque_permille * self.rated_torque_Nm / 1000.0
+                lim = self._max_torque_permille()
+                return max(-lim, min(lim, self.target_torque_permille)) * self.rated_torque_Nm / 1000.0
             return 0.0
+
+    def _max_torque_permille(self) -> int:
+        """0x6072 (max torque) [per mille of rated]; no limit where the dictionary lacks it."""
+        return int(self._value(0x6072, 0)) if self._has(0x6072) else 32767
 
     def set_feedback(self, position_rad: float, velocity_rad_s: float, torque_Nm: float) -> None:
         """Motor state of the plant [rad, rad/s, Nm], sent in the next TPDO."""
@@ -190,7 +197,21 @@ class SimDrive:
                 if last is not None and now_s - last > timeout_s + 1e-6:
                     self._consumer_last_s[node] = None  # re-armed by the next heartbeat
                     logger.warning("node %d: heartbeat of node %d lost", self.node_id, node)
-                    self._fault(EMCY_HEARTBEAT, 0x11)
+                    self._heartbeat_event()
+
+    def _heartbeat_event(self) -> None:
+        """Consumer heartbeat timeout: the reaction 0x6007 asks for (CiA 402-2; 1 where absent)."""
+        option = int(self._value(0x6007, 0)) if self._has(0x6007) else 1
+        if option == 1:
+            self._fault(EMCY_HEARTBEAT, 0x11)
+            return
+        self.network.send_message(0x80 + self.node_id, encode_emcy(EMCY_HEARTBEAT, 0x11))
+        if option == 2 and self.state not in (State402.FAULT, State402.FAULT_REACTION_ACTIVE):
+            self.state = State402.SWITCH_ON_DISABLED
+        elif option == 3 and self.state == State402.OPERATION_ENABLED:
+            self.state = State402.QUICK_STOP_ACTIVE
+        if self.state != State402.OPERATION_ENABLED:
+            self.target_torque_permille = 0
 
     def _quick_stop_to_disabled(self) -> bool:
         option = int(self._value(0x605A, 0)) if self._has(0x605A) else 2
@@ -344,6 +365,8 @@ class SimDrive:
         sw = STATUSWORD_BITS[self.state] | 0x0200
         if self.state == State402.OPERATION_ENABLED and self.mode_display in _TORQUE_MODES:
             sw |= 0x1000
+            if abs(self.target_torque_permille) > self._max_torque_permille():
+                sw |= 0x0800  # internal limit active: the command is capped at 0x6072
         return sw
 
     def _on_read(self, index: int, subindex: int, od: Any, **_: Any) -> int | None:

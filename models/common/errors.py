@@ -11,6 +11,7 @@ Every error raised on purpose by capstan code derives from :class:`CapstanError`
      +-- DriverError            a device driver failed
      |    +-- ProtocolError         malformed bytes / unexpected reply on a wire protocol
      |    +-- DeviceTimeoutError    a device did not answer or went stale in time
+     |    |    +-- DeviceLostError  a device is gone (no heartbeat, process dead)
      |    +-- DriveFaultError       the CiA 402 drive reports a fault (EMCY, statusword)
      |    +-- HeartbeatLostError    a CANopen heartbeat was not seen for too long
      |    +-- StateTransitionError  a DS402 transition did not complete in its timeout
@@ -70,6 +71,10 @@ class DeviceTimeoutError(DriverError):
     """A device did not answer, or its data went stale, within the allowed time."""
 
 
+class DeviceLostError(DeviceTimeoutError):
+    """A device is gone: no heartbeat and no answer for longer than its timeout (killed, unplugged)."""
+
+
 class DriveFaultError(DriverError):
     """The CiA 402 drive reports a fault (statusword fault bit or EMCY)."""
 
@@ -87,11 +92,13 @@ class ControlFaultError(CapstanError):
 
     :param reason: readable description of the fault.
     :param last_cycles: structured numpy array of the last N cycle records, or None.
+    :param bits: the latched fault bits (``FaultBits`` of the controller records; 0 if unknown).
     """
 
-    def __init__(self, reason: str, last_cycles: Any = None) -> None:
+    def __init__(self, reason: str, last_cycles: Any = None, bits: int = 0) -> None:
         self.reason = reason
         self.last_cycles = last_cycles
+        self.bits = int(bits)
         super().__init__(reason)
 
 

@@ -9,8 +9,8 @@ records, log path (plus the plant's and the processes' CPU figures; under ``plan
 the simulated rig's statistics, with ``hand`` the interaction torque of ``hil.hand`` and
 ``effects`` the effects injected into the plant).
 
-Exit codes as ``capstan run`` (0 ok, 2 start-up error, 3 control fault); 4 if the
-simulated rig failed (e.g. cable slack).
+Exit codes as ``capstan run`` (0 ok, 2 start-up error, 3 control fault, 4 device loss);
+4 also if the simulated rig failed (e.g. cable slack) or its process died.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from capstan.controller.runtime.daemon import Daemon
-from capstan.tools.commands.run import EXIT_FAULT
+from capstan.controller.law.records import FaultBits
+from capstan.tools.commands.run import EXIT_DEVICE_LOST, EXIT_FAULT
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError, DriverError
@@ -127,7 +128,10 @@ def run(args: argparse.Namespace) -> int:
             daemon.run(duration_s=args.duration)
         except ControlFaultError as exc:
             log.error("stopped on a fault: %s", exc.reason)
-            code = EXIT_FAULT
+            code = EXIT_DEVICE_LOST if exc.bits & FaultBits.DEVICE_LOST else EXIT_FAULT
+            if rig.proc.poll() is not None:
+                log.error("device loss: the simulated rig process is gone (exit code %s)", rig.proc.returncode)
+                code = EXIT_DEVICE_LOST
         except DriverError:
             if rig.proc.poll() is not None:
                 code = 4

@@ -4,7 +4,8 @@ Runs until SIGTERM/SIGINT (or ``--duration``), ramps torque to zero, disables th
 and closes the log. Exit codes: 0 stopped normally; 2 a start-up or configuration
 error (systemd restarts the unit); 3 a latched control fault — the unit does not
 restart on its own (``RestartPreventExitStatus=3``): someone has to look at the fault
-report first.
+report first; 4 a device is gone (the drive stopped its heartbeat and did not answer
+the disable: unplugged, powered off, or its process killed), named in the fault text.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import argparse
 import json
 import logging
 
+from capstan.controller.law.records import FaultBits
 from capstan.controller.runtime.daemon import Daemon
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.models.common.errors import ControlFaultError
@@ -21,6 +23,8 @@ HELP = "run the 1 kHz controller daemon (rig or simulated devices)"
 
 #: exit code of a latched control fault (no automatic restart)
 EXIT_FAULT = 3
+#: exit code of a fault with a device gone (``FaultBits.DEVICE_LOST``): a failed rig
+EXIT_DEVICE_LOST = 4
 
 log = logging.getLogger("capstan.run")
 
@@ -49,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         daemon.run(duration_s=args.duration)
     except ControlFaultError as exc:
         log.error("stopped on a fault: %s", exc.reason)
-        code = EXIT_FAULT
+        code = EXIT_DEVICE_LOST if exc.bits & FaultBits.DEVICE_LOST else EXIT_FAULT
     summary = daemon.summary.to_dict()
     if args.json:
         print(json.dumps(summary))
