@@ -397,3 +397,26 @@ def test_without_baud_search_a_new_unit_is_refused_with_the_fix(pty: PtyPair) ->
 def test_unsupported_baudrate_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match="imu.baudrate.*250000 Bd is not a rate SetBaudrate"):
         XsensConfig.from_mapping({"port": "/dev/x", "baudrate": 250000})
+
+
+def test_stream_bound_follows_the_readback_including_extra_items() -> None:
+    """The device also sends MagneticField (reported by the read-back): its packets, 15
+    bytes longer than the requested output, are accepted; a forged longer header is not."""
+    from capstan.drivers.serial.xsens_protocol import build_mtdata2_item, encode_values
+
+    readback = [(0x1020, 0xFFFF), (0x1060, 0xFFFF), (0x2010, 400), (0x8020, 400), (0xE020, 0xFFFF),
+                (0xC020, 400)]
+    port = _scripted(readback)
+    imu = XsensImu(XsensConfig(port="scripted"), port=port)
+    imu.start()
+    data = b"".join([
+        build_mtdata2_item(0x1020, (7).to_bytes(2, "big")), build_mtdata2_item(0x1060, (70).to_bytes(4, "big")),
+        build_mtdata2_item(0x2010, encode_values((1.0, 0.0, 0.0, 0.0), 0)),
+        build_mtdata2_item(0x8020, encode_values((0.0, 0.0, 0.5), 0)),
+        build_mtdata2_item(0xE020, (3).to_bytes(4, "big")),
+        build_mtdata2_item(0xC020, encode_values((0.1, 0.2, 0.3), 0))])
+    assert len(data) == 53 + 15
+    port._rx += bytes.fromhex("FA FF 36 45") + build_message(Mid.MT_DATA2, data)  # 0x45 = 69 > 68: forged
+    s = imu.poll()
+    assert s is not None and s.counter == 7 and s.dq_out_rad_s == pytest.approx(0.5)
+    assert imu.stats.bad_frames == 1 and imu.stats.bytes_skipped == 4
