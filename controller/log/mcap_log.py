@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.log.ring import dtype_to_json
-from capstan.controller.log.schema import (MESSAGE_ENCODING, SCHEMA_ENCODING, ProtoLayout, build_layout,
-                                    event_schema_bytes)
+from capstan.controller.log.schema import (MESSAGE_ENCODING, SCHEMA_ENCODING, LogFormatError, ProtoLayout,
+                                           build_layout, event_schema_bytes)
 from capstan.controller.log.mcap_writer import DEFAULT_ZSTD_LEVEL, McapChunkWriter
 
 _log = logging.getLogger(__name__)
@@ -43,6 +43,8 @@ _log = logging.getLogger(__name__)
 CYCLE_TOPIC = "/capstan/cycle"
 EVENTS_TOPIC = "/capstan/events"
 STATS_TOPIC = "/capstan/stats"
+#: metadata record naming how the SI fields follow from the stored wire fields
+DERIVATIONS_META = "capstan.derivations"
 LOG_FORMAT_VERSION = "1"
 #: default chunk close period [s]: a kill of the writer loses at most this, plus one
 #: poll (5 ms) and the compression of one chunk (~30 ms at the live writer's zstd level), so
@@ -71,6 +73,18 @@ def columns_to_json(records: np.ndarray) -> dict[str, list]:
     return {n: [_json_value(v) for v in records[n].tolist()] for n in records.dtype.names}
 
 
+def stored_dtype(record_dtype: np.dtype, drop_fields: tuple[str, ...] = ()) -> np.dtype:
+    """The record dtype without ``drop_fields`` (what a live log stores per cycle).
+
+    :raises LogFormatError: if a dropped field is not in the record.
+    """
+    names = record_dtype.names or ()
+    unknown = [f for f in drop_fields if f not in names]
+    if unknown:
+        raise LogFormatError(f"dropped fields {unknown} are not fields of the record")
+    return np.dtype([(n, record_dtype[n]) for n in names if n not in drop_fields])
+
+
 class McapLog:
     """Writes records to a rotating set of MCAP files.
 
@@ -92,6 +106,9 @@ class McapLog:
         files; only for fields replay recomputes).
     :param first_path: exact path of the first file (offline what-if logs); later
         rotated files follow the naming pattern.
+    :param drop_fields: record fields not stored (SI values a reader rebuilds from the
+        stored wire values with the ``capstan.derivations`` metadata, see
+        :meth:`add_metadata`); the full record dtype goes in the channel metadata.
     :raises ValueError: on an unknown compression or a zstd level out of 1..22.
     :raises LogFormatError: if a dtype cannot be logged.
     """
@@ -102,7 +119,7 @@ class McapLog:
                  compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
                  time_field: str = "t_s", extra_meta: dict[str, str] | None = None,
                  first_path: str | Path | None = None, float32_fields: tuple[str, ...] = (),
-                 zstd_level: int = DEFAULT_ZSTD_LEVEL) -> None:
+                 zstd_level: int = DEFAULT_ZSTD_LEVEL, drop_fields: tuple[str, ...] = ()) -> None:
         comp = {"zstd": "zstd", "lz4": "lz4", "none": ""}
         if compression not in comp:
             raise ValueError(f"compression must be one of {', '.join(comp)}, got {compression!r}")
@@ -111,7 +128,11 @@ class McapLog:
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.prefix = prefix
-        self.layout: ProtoLayout = build_layout(record_dtype, "capstan.Cycle", tuple(float32_fields))
+        self.record_dtype = np.dtype(record_dtype)
+        self.drop_fields = tuple(drop_fields)
+        self.layout: ProtoLayout = build_layout(stored_dtype(self.record_dtype, self.drop_fields),
+                                                "capstan.Cycle", tuple(float32_fields))
+        self._metadata: dict[str, dict[str, str]] = {}
         self.stats_layout = build_layout(stats_dtype, "capstan.Stats") if stats_dtype is not None else None
         self.config_yaml = config_yaml
         self.float32_fields = tuple(float32_fields)
@@ -153,9 +174,13 @@ class McapLog:
         meta.update(self.extra_meta)
         w.add_metadata("capstan.log", meta)
         sid = w.register_schema(self.layout.message_name, SCHEMA_ENCODING, self.layout.schema)
-        self._cycle_ch = w.register_channel(
-            CYCLE_TOPIC, MESSAGE_ENCODING, sid,
-            {"numpy_dtype": meta["numpy_dtype"], "float32_fields": json.dumps(list(self.float32_fields))})
+        ch_meta = {"numpy_dtype": meta["numpy_dtype"], "float32_fields": json.dumps(list(self.float32_fields))}
+        if self.drop_fields:
+            ch_meta["record_dtype"] = json.dumps(dtype_to_json(self.record_dtype))
+            ch_meta["derived_fields"] = json.dumps(list(self.drop_fields))
+        self._cycle_ch = w.register_channel(CYCLE_TOPIC, MESSAGE_ENCODING, sid, ch_meta)
+        for name, values in self._metadata.items():
+            w.add_metadata(name, values)
         eid = w.register_schema("capstan.Event", "jsonschema", event_schema_bytes())
         self._event_ch = w.register_channel(EVENTS_TOPIC, "json", eid)
         self._stats_ch = 0
@@ -212,6 +237,13 @@ class McapLog:
         w.add_messages(channel, times, layout.encode(records))
         if channel == self._cycle_ch:
             self._last_t_ns = int(times[-1])
+
+    def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        """Write a metadata record now and into every later file of the set (rotation)."""
+        assert self._writer is not None
+        self._metadata[name] = dict(values)
+        self._writer.add_metadata(name, dict(values))
+        self.flush()
 
     def write_event(self, t_s: float, kind: EventKind, reason: str = "", code: int = 0,
                     dropped_total: int = 0, last_cycles: np.ndarray | None = None) -> None:

@@ -27,9 +27,10 @@ from mcap.records import Channel, Chunk, Footer, Message, McapRecord, Metadata, 
 from mcap.stream_reader import StreamReader
 
 from capstan.controller.log.ring import dtype_from_json
-from capstan.controller.log.mcap_log import CYCLE_TOPIC, EVENTS_TOPIC, STATS_TOPIC
+from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENTS_TOPIC, STATS_TOPIC
 from capstan.controller.log.schema import ProtoLayout, build_layout
 from capstan.models.common.errors import DataFormatError
+from capstan.models.common.wire_units import Derivation, apply_ops
 
 _log = logging.getLogger(__name__)
 
@@ -252,6 +253,10 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
     records = _decode_channel(p, col, CYCLE_TOPIC)
     if records is None:
         raise DataFormatError(f"{p}: no {CYCLE_TOPIC} channel; not a capstan log")
+    cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
+    if "record_dtype" in cyc.metadata:
+        records = rebuild_derived(records, dtype_from_json(json.loads(cyc.metadata["record_dtype"])),
+                                  col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p)
     stats = _decode_channel(p, col, STATS_TOPIC)
     events: list[dict[str, Any]] = []
     ev_ch = next((c for c in col.channels.values() if c.topic == EVENTS_TOPIC), None)
@@ -268,6 +273,39 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
         raise DataFormatError(f"{p}: stored config is not valid YAML: {exc}") from exc
     return LogData(p, records, config_yaml, config if isinstance(config, dict) else {}, meta,
                    events, stats, truncated)
+
+
+def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json: str | None,
+                    path: Path | str = "") -> np.ndarray:
+    """The full cycle records from the stored ones: stored fields copied, every other
+    field computed from its wire field with the logged derivation (the drivers' own
+    conversion, :mod:`capstan.models.common.wire_units`), bit for bit.
+
+    :raises DataFormatError: if the derivations are missing or malformed, or a field of
+        the record is neither stored nor derived.
+    """
+    out = np.zeros(len(stored), record_dtype)
+    for name in stored.dtype.names:
+        if name in record_dtype.names:
+            out[name] = stored[name]
+    missing = [n for n in record_dtype.names if n not in stored.dtype.names]
+    if not missing:
+        return out
+    if not derivations_json:
+        raise DataFormatError(f"{path}: the log stores wire values but no '{DERIVATIONS_META}' metadata; "
+                              f"cannot rebuild {', '.join(missing)}")
+    try:
+        items = json.loads(derivations_json)
+    except ValueError as exc:
+        raise DataFormatError(f"{path}: '{DERIVATIONS_META}' metadata is not JSON: {exc}") from exc
+    derivations = {d.field: d for d in (Derivation.from_json(x) for x in items)}
+    for name in missing:
+        d = derivations.get(name)
+        if d is None or d.source not in stored.dtype.names:
+            raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
+                                  "wire field")
+        out[name] = apply_ops(stored[d.source].astype(np.float64), d.ops)
+    return out
 
 
 def read_logs(paths: list[str | Path]) -> LogData:

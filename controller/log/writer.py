@@ -21,6 +21,7 @@ the one to decide when logging ends.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import signal
@@ -28,13 +29,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from capstan.controller.log.ring import LogRing
-from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog
-from capstan.controller.log.schema import build_layout
+from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog, stored_dtype
+from capstan.controller.log.schema import LogFormatError, build_layout
 from capstan.models.common.errors import CapstanError
 
 _log = logging.getLogger(__name__)
@@ -48,6 +49,9 @@ class LogWriterError(CapstanError):
 #: of each other, 15 about 12 % smaller at 30-40 us CPU per record, i.e. 3-4 % of one CPU
 #: at 1 kHz, 19 no smaller at twice the CPU)
 LIVE_ZSTD_LEVEL = 15
+
+#: one metadata record passed from the daemon to the writer: name, JSON object of strings
+META_DTYPE = np.dtype([("name", "S64"), ("json", "S16320")])
 
 #: fixed-size event record passed from the daemon to the writer
 EVENT_DTYPE = np.dtype([("t_s", "<f8"), ("kind", "<u4"), ("n_cycles", "<u4"), ("code", "<u8"),
@@ -107,7 +111,8 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                rotate_time_s: float = 0.0, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
                compression: str = "zstd", fault_history_n: int = 1000, poll_s: float = 0.005,
                parent_pid: int = 0, stop_flag: list[bool] | None = None,
-               float32_fields: tuple[str, ...] = (), zstd_level: int = LIVE_ZSTD_LEVEL) -> McapLog:
+               float32_fields: tuple[str, ...] = (), zstd_level: int = LIVE_ZSTD_LEVEL,
+               meta: LogRing | None = None, drop_fields: tuple[str, ...] = ()) -> McapLog:
     """Drain the rings into MCAP until the producer closes, dies, or ``stop_flag[0]``.
 
     :returns: the closed :class:`McapLog` (``files``, ``records_written``).
@@ -120,7 +125,7 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                    stats_dtype=stats.dtype if stats is not None else None,
                    rotate_size_bytes=rotate_size_bytes, rotate_time_s=rotate_time_s,
                    flush_interval_s=flush_interval_s, compression=compression,
-                   float32_fields=float32_fields, zstd_level=zstd_level)
+                   float32_fields=float32_fields, zstd_level=zstd_level, drop_fields=drop_fields)
     hist = _History(cycle.dtype, fault_history_n)
     cycle.set_consumer_ready()
     producer = parent_pid or cycle.producer_pid
@@ -129,6 +134,9 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
     try:
         while True:
             finished = cycle.closed          # read before draining: nothing can follow it
+            if meta is not None:             # metadata first: it describes the records
+                for m in meta.read_batch():
+                    _write_metadata(mlog, m)
             # events first: a fault's cycle record was pushed before the fault, so it is
             # in the history or in the batch read next
             evs = events.read_batch() if events is not None else None
@@ -179,6 +187,16 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
     return mlog
 
 
+def _write_metadata(mlog: McapLog, m: np.void) -> None:
+    name = bytes(m["name"]).decode(errors="replace")
+    try:
+        values = json.loads(bytes(m["json"]).decode())
+    except ValueError as exc:
+        _log.error("metadata %r from the daemon is not JSON (%s); not written", name, exc)
+        return
+    mlog.add_metadata(name, {str(k): v if isinstance(v, str) else json.dumps(v) for k, v in values.items()})
+
+
 def _write_event(mlog: McapLog, ev: np.void, hist: _History, batch: np.ndarray, dropped: int) -> None:
     kind = int(ev["kind"])
     try:
@@ -217,8 +235,10 @@ class LogSession:
                  fault_history_n: int = 1000, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
                  rotate_size_bytes: int = 0, rotate_time_s: float = 0.0,
                  compression: str = "zstd", float32_fields: tuple[str, ...] = (),
-                 zstd_level: int = LIVE_ZSTD_LEVEL) -> None:
-        build_layout(record_dtype, "capstan.Cycle", tuple(float32_fields))   # fail here, not in the writer
+                 zstd_level: int = LIVE_ZSTD_LEVEL, drop_fields: tuple[str, ...] = ()) -> None:
+        # fail here, not in the writer
+        build_layout(stored_dtype(np.dtype(record_dtype), tuple(drop_fields)), "capstan.Cycle",
+                     tuple(float32_fields))
         if not 1 <= int(zstd_level) <= 22:
             raise ValueError(f"zstd level must be 1..22, got {zstd_level}")
         self.out_dir = Path(out_dir)
@@ -226,12 +246,15 @@ class LogSession:
         self.cycle = LogRing.create(record_dtype, capacity, meta={"config_yaml": config_yaml})
         self.events = LogRing.create(EVENT_DTYPE, 256)
         self.stats = LogRing.create(stats_dtype, 64) if stats_dtype is not None else None
+        self.meta = LogRing.create(META_DTYPE, 8)
+        self._meta_rec = np.zeros(1, META_DTYPE)
         self._ev = np.zeros(1, EVENT_DTYPE)
         self._args = ["--prefix", prefix, "--flush-interval-s", str(flush_interval_s),
                       "--rotate-size-bytes", str(int(rotate_size_bytes)),
                       "--rotate-time-s", str(rotate_time_s), "--compression", compression,
                       "--fault-history", str(fault_history_n),
-                      "--float32-fields", ",".join(float32_fields), "--zstd-level", str(int(zstd_level))]
+                      "--float32-fields", ",".join(float32_fields), "--zstd-level", str(int(zstd_level)),
+                      "--drop-fields", ",".join(drop_fields)]
         self.proc: subprocess.Popen | None = None
 
     def start(self, ready_timeout_s: float = 10.0) -> None:
@@ -241,7 +264,7 @@ class LogSession:
         :raises LogWriterError: if the writer exits or is not ready within ``ready_timeout_s``.
         """
         cmd = [sys.executable, "-m", "capstan.controller.log.writer", "--ring", self.cycle.name,
-               "--events-ring", self.events.name, "--out-dir", str(self.out_dir),
+               "--events-ring", self.events.name, "--meta-ring", self.meta.name, "--out-dir", str(self.out_dir),
                "--parent-pid", str(os.getpid()), *self._args]
         if self.stats is not None:
             cmd += ["--stats-ring", self.stats.name]
@@ -275,6 +298,20 @@ class LogSession:
         e["reason"] = reason.encode()[:240]
         return self.events.push(e)
 
+    def metadata(self, name: str, values: dict[str, Any]) -> bool:
+        """Queue a metadata record (``name`` -> JSON-serialisable mapping) for the current
+        and every later log file; False if the metadata ring is full.
+
+        :raises LogFormatError: if the name or the JSON text is too long for one slot.
+        """
+        text = json.dumps(values).encode()
+        if len(text) > META_DTYPE["json"].itemsize or len(name.encode()) > META_DTYPE["name"].itemsize:
+            raise LogFormatError(f"metadata {name!r}: {len(text)} bytes of JSON do not fit one slot "
+                                 f"({META_DTYPE['json'].itemsize})")
+        m = self._meta_rec
+        m["name"], m["json"] = name.encode(), text
+        return self.meta.push(m)
+
     @property
     def dropped(self) -> int:
         """Cycle records dropped so far."""
@@ -300,7 +337,7 @@ class LogSession:
                 except subprocess.TimeoutExpired:
                     self.proc.kill()
                     self.proc.wait()
-        for ring in (self.cycle, self.events, self.stats):
+        for ring in (self.cycle, self.events, self.stats, self.meta):
             if ring is not None:
                 ring.close()
         return code
@@ -312,6 +349,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--ring", required=True, help="cycle ring file")
     p.add_argument("--events-ring", help="event ring file")
     p.add_argument("--stats-ring", help="stats ring file")
+    p.add_argument("--meta-ring", help="metadata ring file")
+    p.add_argument("--drop-fields", default="", help="comma-separated record fields not stored")
     p.add_argument("--out-dir", required=True)
     p.add_argument("--prefix", default="capstan")
     p.add_argument("--rotate-size-bytes", type=int, default=0)
@@ -335,13 +374,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     cycle = LogRing.attach(args.ring)
     events = LogRing.attach(args.events_ring) if args.events_ring else None
     stats = LogRing.attach(args.stats_ring) if args.stats_ring else None
+    meta = LogRing.attach(args.meta_ring) if args.meta_ring else None
     run_writer(cycle, args.out_dir, events, stats, args.prefix, args.rotate_size_bytes,
                args.rotate_time_s, args.flush_interval_s, args.compression, args.fault_history,
                parent_pid=args.parent_pid, stop_flag=stop,
                float32_fields=tuple(f for f in args.float32_fields.split(",") if f),
-               zstd_level=args.zstd_level)
+               zstd_level=args.zstd_level, meta=meta,
+               drop_fields=tuple(f for f in args.drop_fields.split(",") if f))
     orphaned = not _alive(args.parent_pid or cycle.producer_pid)
-    for ring in (cycle, events, stats):
+    for ring in (cycle, events, stats, meta):
         if ring is not None:
             ring.close(unlink=orphaned)     # the producer cannot clean up after itself
     return 0

@@ -32,7 +32,8 @@ import numpy as np
 
 from capstan.controller.runtime import realtime
 from capstan.controller.runtime.config import DaemonConfig
-from capstan.controller.runtime.session_log import STATS_DTYPE, LogSink, fill_stats, newest_log, open_session
+from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, newest_log, open_session,
+                                                    send_derivations, wire_capable)
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
 from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, process_cpu_s, shared_abs_sleep
@@ -150,7 +151,8 @@ class Daemon:
         if self.sink is None:
             lg = self.cfg.logging
             self.sink = open_session(lg.dir, ctl.record.dtype, self.cfg.raw, lg.ring_records,
-                                     lg.fault_history_cycles)
+                                     lg.fault_history_cycles, wire=wire_capable(self.devices),
+                                     imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)))
         old_handlers = self._install_signals()
         dev = self.devices
         rt = None
@@ -161,6 +163,7 @@ class Daemon:
             dev.imu.start()
             dev.load_cells.start()
             dev.motor.start()
+            send_derivations(self.sink, dev)
             t2 = time.monotonic()
             helpers = [t for t in threading.enumerate() if t is not threading.current_thread()]
             raised = realtime.apply_to_threads(self.cfg.realtime, rt, helpers)
@@ -227,11 +230,14 @@ class Daemon:
                 r["dq_m_rad_s"] = m.velocity_rad_s
                 r["tau_m_meas_Nm"] = m.torque_Nm
                 r["motor_t_s"] = m_t = m.t_s
+                r["q_m_counts"], r["dq_m_units"] = m.position_counts, m.velocity_units
+                r["tau_m_meas_permille"], r["motor_t_ns"] = m.torque_permille, m.t_ns
             s = imu.poll()
             if s is not None:
                 r["q_out_rad"] = s.q_out_rad
                 r["dq_out_rad_s"] = s.dq_out_rad_s
                 r["imu_t_s"] = imu_t = s.t_s
+                r["imu_rate_rad_s"], r["imu_t_ns"] = s.rate_rad_s, s.t_ns
                 r["imu_new"] = 1
             else:
                 r["imu_new"] = 0
@@ -240,8 +246,12 @@ class Daemon:
                 T = c.tensions_N
                 r["T_up_in_N"], r["T_up_out_N"], r["T_lo_out_N"], r["T_lo_in_N"] = T[0], T[1], T[2], T[3]
                 r["lc_t_s"] = lc_t = c.t_s
+                W = c.raw_mV_V
+                r["lc_up_in_mV_V"], r["lc_up_out_mV_V"], r["lc_lo_out_mV_V"], r["lc_lo_in_mV_V"] = W[0], W[1], W[2], W[3]
+                r["lc_t_ns"] = c.t_ns
             r["cycle"] = cycle
             r["t_s"] = t_s
+            r["t_ns"] = wake
             if sl.streak >= streak_fault:
                 ext |= FaultBits.OVERRUN_STREAK
                 reason = reason or f"{sl.streak} consecutive late cycles (limit {streak_fault})"

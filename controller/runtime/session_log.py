@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from capstan.controller.law.records import LOG_FLOAT32_FIELDS
+from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS
 from capstan.controller.runtime.timing import WindowReport
 
 #: one timing-statistics record per window (``/capstan/stats``), µs unless noted
@@ -46,6 +46,9 @@ class LogSink(Protocol):
     def writer_alive(self) -> bool:
         """True while the writer runs."""
 
+    def metadata(self, name: str, values: dict[str, Any]) -> bool:
+        """Queue a metadata record for every log file (e.g. the wire derivations)."""
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         """Finish the log (writer drains and closes the file)."""
 
@@ -57,6 +60,7 @@ class NullSink:
         self.pushed = 0
         self.stats: list[np.ndarray] = []
         self.faults: list[tuple[float, str, int]] = []
+        self.meta: dict[str, dict[str, Any]] = {}
         self.closed = False
 
     def push(self, record: np.ndarray) -> bool:
@@ -78,17 +82,29 @@ class NullSink:
     def writer_alive(self) -> bool:
         return True
 
+    def metadata(self, name: str, values: dict[str, Any]) -> bool:
+        self.meta[name] = dict(values)
+        return True
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         self.closed = True
         return 0
 
 
 def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_records: int,
-                 fault_history_cycles: int, prefix: str = "capstan") -> Any:
+                 fault_history_cycles: int, prefix: str = "capstan", wire: bool = False,
+                 imu_rate_float32: bool = False) -> Any:
     """Create the rings and start the writer process.
 
     The fields of :data:`capstan.controller.law.records.LOG_FLOAT32_FIELDS` that the record has are
     stored as float32 (recomputed by a replay, or integer-nanosecond timing).
+
+    :param wire: store the measurements as the devices sent them: the SI fields of
+        :data:`capstan.controller.law.records.DERIVED_FROM_WIRE` are left out (a reader
+        rebuilds them with the ``capstan.derivations`` metadata the daemon sends with
+        :func:`send_derivations` once the devices are started).
+    :param imu_rate_float32: the IMU sends its rate of turn as float32, so the wire
+        field is stored as float32 (exact).
 
     :param config: the daemon config mapping, stored as YAML in every log file.
     :returns: a started :class:`capstan.controller.log.writer.LogSession`.
@@ -100,11 +116,37 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
     text = yaml.safe_dump(config, sort_keys=False) if not isinstance(config, str) else config
     names = record_dtype.names or ()
     f32 = tuple(f for f in LOG_FLOAT32_FIELDS if f in names and record_dtype[f] == np.float64)
+    drop: tuple[str, ...] = ()
+    if wire:
+        drop = tuple(f for f, src in DERIVED_FROM_WIRE.items() if f in names and src in names)
+        if imu_rate_float32 and "imu_rate_rad_s" in names:
+            f32 += ("imu_rate_rad_s",)
     session = LogSession(record_dtype, out_dir, config_yaml=text, stats_dtype=STATS_DTYPE,
                          capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
-                         float32_fields=f32)
+                         float32_fields=f32, drop_fields=drop)
     session.start()
     return session
+
+
+def wire_capable(devices: Any) -> bool:
+    """True if every device says how its SI values follow from its wire values
+    (``derivations()``), so the log can store wire values only."""
+    return all(callable(getattr(d, "derivations", None)) for d in (devices.motor, devices.imu, devices.load_cells))
+
+
+def send_derivations(sink: Any, devices: Any) -> None:
+    """Send the started devices' wire -> SI derivations (and the loop clock's) to the log
+    as the ``capstan.derivations`` metadata record."""
+    from capstan.controller.log.mcap_log import DERIVATIONS_META
+    from capstan.models.common.wire_units import NS_TO_S, Derivation
+    items = [Derivation("t_s", "t_ns", NS_TO_S)]
+    for dev in (devices.motor, devices.imu, devices.load_cells):
+        get = getattr(dev, "derivations", None)
+        if callable(get):
+            items += get()
+    put = getattr(sink, "metadata", None)
+    if callable(put):
+        put(DERIVATIONS_META, {"derivations": [d.to_json() for d in items]})
 
 
 def newest_log(out_dir: Path, prefix: str = "capstan", since_s: float = 0.0) -> Path | None:

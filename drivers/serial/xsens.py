@@ -36,6 +36,7 @@ from capstan.drivers.serial.xsens_protocol import (
 )
 from capstan.models.common.config_tools import get_choice, get_float, get_int, reject_unknown
 from capstan.models.common.errors import ConfigError, DeviceTimeoutError, DriverError, ProtocolError
+from capstan.models.common.wire_units import NS_TO_S, Derivation, scale_ops, seconds_from_ns
 
 log = logging.getLogger(__name__)
 
@@ -336,8 +337,21 @@ class XsensImu:
         if newest is None:
             return None
         (q, dq), c = newest
-        return ImuSample(t_s=time.monotonic(), q_out_rad=q, dq_out_rad_s=dq,
-                         counter=-1 if c is None else c)
+        t_ns = time.monotonic_ns()
+        rate = self.last_packet.rate_of_turn_rad_s[int(self.config.joint_axis)]
+        return ImuSample(t_s=seconds_from_ns(t_ns), q_out_rad=q, dq_out_rad_s=dq,
+                         counter=-1 if c is None else c, t_ns=t_ns, rate_rad_s=rate)
+
+    def derivations(self) -> list[Derivation]:
+        """How a log rebuilds ``dq_out_rad_s`` and ``imu_t_s`` from the logged wire values:
+        exactly :func:`joint_from_mtdata2` (``sign * rate``) and the receive clock."""
+        return [Derivation("dq_out_rad_s", "imu_rate_rad_s", scale_ops(self.config.sign)),
+                Derivation("imu_t_s", "imu_t_ns", NS_TO_S)]
+
+    @property
+    def rate_is_float32(self) -> bool:
+        """True if the sensor sends its rate of turn as float32 (``precision: float32``)."""
+        return self.config.precision == Precision.FLOAT32
 
     def close(self) -> None:
         """Close the port (idempotent)."""
