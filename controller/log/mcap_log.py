@@ -59,6 +59,7 @@ class EventKind(enum.IntEnum):
     DROPPED = 2          #: records were dropped because the writer fell behind
     NOTICE = 3           #: informational (start, rotation, shutdown reason)
     PRODUCER_LOST = 4    #: the daemon died without closing the ring
+    WRITER_RESTARTED = 5  #: first event of a file after the previous writer died: the gap
 
 
 def _json_value(x: Any) -> Any:
@@ -146,6 +147,10 @@ class McapLog:
         self.zstd_level = int(zstd_level)
         self.files: list[Path] = []
         self.records_written = 0
+        #: records handed to the OS at the last flush, and the ``cycle`` of the last of them
+        self.records_flushed = 0
+        self.last_flushed_cycle = -1
+        self._last_cycle = -1
         self._fh: Any = None
         self._writer: McapChunkWriter | None = None
         self._opened_at = 0.0
@@ -157,7 +162,11 @@ class McapLog:
     # ------------------------------------------------------------------ files
     def _open_next(self) -> None:
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-        path = self.out_dir / f"{self.prefix}_{stamp}_{len(self.files):03d}.mcap"
+        index = len(self.files)
+        path = self.out_dir / f"{self.prefix}_{stamp}_{index:03d}.mcap"
+        while path.exists() and self._first_path is None:   # a restarted writer in the same second
+            index += 1
+            path = self.out_dir / f"{self.prefix}_{stamp}_{index:03d}.mcap"
         if self._first_path is not None and not self.files:
             path = self._first_path
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -202,6 +211,7 @@ class McapLog:
             os.fsync(self._fh.fileno())
             self._fh.close()
             self._writer = None
+            self.records_flushed, self.last_flushed_cycle = self.records_written, self._last_cycle
 
     @property
     def current_file(self) -> Path:
@@ -222,6 +232,8 @@ class McapLog:
             return
         self._add(self._cycle_ch, self.layout, records, self.time_field)
         self.records_written += len(records)
+        if "cycle" in (records.dtype.names or ()):
+            self._last_cycle = int(records["cycle"][-1])
 
     def write_stats(self, records: np.ndarray) -> None:
         """Append ``/capstan/stats`` records (ignored without a stats dtype)."""
@@ -246,12 +258,18 @@ class McapLog:
         self.flush()
 
     def write_event(self, t_s: float, kind: EventKind, reason: str = "", code: int = 0,
-                    dropped_total: int = 0, last_cycles: np.ndarray | None = None) -> None:
-        """Append one JSON event on ``/capstan/events`` and flush it to disk at once."""
+                    dropped_total: int = 0, last_cycles: np.ndarray | None = None,
+                    extra: dict[str, Any] | None = None) -> None:
+        """Append one JSON event on ``/capstan/events`` and flush it to disk at once.
+
+        :param extra: more JSON members (e.g. the ``gap_*`` members of WRITER_RESTARTED).
+        """
         assert self._writer is not None
         msg: dict[str, Any] = {"t_s": _json_value(float(t_s)), "kind": int(kind),
                                "kind_name": EventKind(kind).name, "code": int(code),
                                "reason": reason, "dropped_total": int(dropped_total)}
+        if extra:
+            msg.update(extra)
         if last_cycles is not None:
             msg["last_cycles"] = columns_to_json(last_cycles)
         # an event without its own time is placed at the last cycle's time, on the same
@@ -266,6 +284,7 @@ class McapLog:
         if self._writer is not None:
             self._writer.flush()
             self._last_flush = time.monotonic()
+            self.records_flushed, self.last_flushed_cycle = self.records_written, self._last_cycle
 
     def tick(self, now: float | None = None) -> None:
         """Apply the flush and rotation policies; call after each batch."""

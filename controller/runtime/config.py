@@ -6,7 +6,8 @@ Sections::
     motor:       {backend: <name>, ...backend options}     see drivers.registry
     imu:         {backend: <name>, ...}
     load_cells:  {backend: <name>, ...}
-    logging:     {dir, ring_records, fault_history_cycles}
+    logging:     {dir, ring_records, fault_history_cycles, on_writer_loss: restart|stop,
+                  max_writer_restarts}
     realtime:    {mode: off|warn|enforce, priority, helper_priority, cpus, lock_memory,
                   gil_switch_interval_s}
     loop:        {period_s, busy_tail_s, overrun_streak_fault, sensor_fresh_s, ramp_down_s,
@@ -82,11 +83,16 @@ class LoggingSettings:
     """:ivar dir: directory for MCAP logs and fault reports.
     :ivar ring_records: capacity of the shared-memory ring [records].
     :ivar fault_history_cycles: cycles attached to a fault report (the last N).
+    :ivar on_writer_loss: ``restart`` the log writer into a new file when it dies (the gap
+        written as an event), or ``stop`` the loop (torque ramped to zero).
+    :ivar max_writer_restarts: writer deaths tolerated under ``restart``; one more stops.
     """
 
     dir: Path = Path("runs/logs")
     ring_records: int = 8192
     fault_history_cycles: int = 500
+    on_writer_loss: str = "restart"
+    max_writer_restarts: int = 3
 
 
 @dataclass(frozen=True)
@@ -142,7 +148,7 @@ class DaemonConfig:
 
 def _logging(c: Mapping[str, Any], base_dir: Path | None) -> LoggingSettings:
     p = "logging"
-    reject_unknown(c, {"dir", "ring_records", "fault_history_cycles"}, p)
+    reject_unknown(c, {"dir", "ring_records", "fault_history_cycles", "on_writer_loss", "max_writer_restarts"}, p)
     d = LoggingSettings()
     raw = c.get("dir", str(d.dir))
     if not isinstance(raw, str) or not raw:
@@ -151,7 +157,9 @@ def _logging(c: Mapping[str, Any], base_dir: Path | None) -> LoggingSettings:
     if not path.is_absolute() and base_dir is not None:
         path = base_dir / path
     return LoggingSettings(path, get_int(c, "ring_records", p, d.ring_records, min_value=64),
-                           get_int(c, "fault_history_cycles", p, d.fault_history_cycles, min_value=1))
+                           get_int(c, "fault_history_cycles", p, d.fault_history_cycles, min_value=1),
+                           get_choice(c, "on_writer_loss", ("restart", "stop"), p, d.on_writer_loss),
+                           get_int(c, "max_writer_restarts", p, d.max_writer_restarts, min_value=0, max_value=100))
 
 
 def _realtime(c: Mapping[str, Any]) -> RealtimeSettings:

@@ -152,7 +152,8 @@ class Daemon:
             lg = self.cfg.logging
             self.sink = open_session(lg.dir, ctl.record.dtype, self.cfg.raw, lg.ring_records,
                                      lg.fault_history_cycles, wire=wire_capable(self.devices),
-                                     imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)))
+                                     imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)),
+                                     on_writer_loss=lg.on_writer_loss, max_writer_restarts=lg.max_writer_restarts)
         old_handlers = self._install_signals()
         dev = self.devices
         rt = None
@@ -196,6 +197,7 @@ class Daemon:
         hist = np.zeros(n_hist, dtype=rec.dtype)
         stats_buf = np.zeros(1, dtype=STATS_DTYPE)
         writer_ok = True
+        writer_lost = False
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
         ping = note.ping_interval_s
@@ -322,6 +324,10 @@ class Daemon:
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
                 log.info("%s", line)
                 note.status(line)
+                if _writer_lost(sink) and not writer_lost:
+                    writer_lost = self._stop = True
+                    log.error("log writer lost (logging.on_writer_loss: %s); ramping torque to zero",
+                              self.cfg.logging.on_writer_loss)
                 if not writer_ok and sink.writer_alive():
                     writer_ok = True
                 elif writer_ok and not sink.writer_alive():
@@ -335,6 +341,10 @@ class Daemon:
             wake, late = sl.wait()
         self.phase = Phase.STOPPED
         self._finish_summary(sl, stats, sink, cpu0, wall0)
+        if writer_lost:
+            text = f"log writer lost: {getattr(sink, 'lost_reason', 'not restarted')}; torque ramped to zero"
+            self.summary.faults.append(text)
+            raise ControlFaultError(text, None)
 
     def _fault(self, motor: Any, sink: LogSink, hist: np.ndarray, cycles: int, bits: int,
                reason: str, t_s: float, gap_s: float) -> None:
@@ -402,6 +412,12 @@ class Daemon:
     def _restore_signals(old: dict[int, Any]) -> None:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def _writer_lost(sink: Any) -> bool:
+    """Supervise the log writer (restarts it by policy); True if it is lost for good."""
+    supervise = getattr(sink, "supervise", None)
+    return callable(supervise) and int(supervise()) == 2      # WriterHealth.LOST
 
 
 def _cpu_snapshot(sink: Any) -> dict[str, float]:

@@ -49,6 +49,9 @@ class LogSink(Protocol):
     def metadata(self, name: str, values: dict[str, Any]) -> bool:
         """Queue a metadata record for every log file (e.g. the wire derivations)."""
 
+    def supervise(self) -> int:
+        """Check the writer about once a second; a WriterHealth value (2 = lost: stop)."""
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         """Finish the log (writer drains and closes the file)."""
 
@@ -86,6 +89,9 @@ class NullSink:
         self.meta[name] = dict(values)
         return True
 
+    def supervise(self) -> int:
+        return 0
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         self.closed = True
         return 0
@@ -93,7 +99,8 @@ class NullSink:
 
 def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_records: int,
                  fault_history_cycles: int, prefix: str = "capstan", wire: bool = False,
-                 imu_rate_float32: bool = False) -> Any:
+                 imu_rate_float32: bool = False, on_writer_loss: str = "restart",
+                 max_writer_restarts: int = 3) -> Any:
     """Create the rings and start the writer process.
 
     The fields of :data:`capstan.controller.law.records.LOG_FLOAT32_FIELDS` that the record has are
@@ -105,13 +112,15 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
         :func:`send_derivations` once the devices are started).
     :param imu_rate_float32: the IMU sends its rate of turn as float32, so the wire
         field is stored as float32 (exact).
+    :param on_writer_loss / max_writer_restarts: writer supervision policy
+        (:class:`capstan.controller.log.session.LogSession`).
 
     :param config: the daemon config mapping, stored as YAML in every log file.
     :returns: a started :class:`capstan.controller.log.writer.LogSession`.
     :raises OSError: if the rings or the log directory cannot be created.
     :raises LogWriterError: if the writer process does not start.
     """
-    from capstan.controller.log.writer import LogSession
+    from capstan.controller.log.session import LogSession
     out_dir.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(config, sort_keys=False) if not isinstance(config, str) else config
     names = record_dtype.names or ()
@@ -123,7 +132,8 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
             f32 += ("imu_rate_rad_s",)
     session = LogSession(record_dtype, out_dir, config_yaml=text, stats_dtype=STATS_DTYPE,
                          capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
-                         float32_fields=f32, drop_fields=drop)
+                         float32_fields=f32, drop_fields=drop, on_writer_loss=on_writer_loss,
+                         max_writer_restarts=max_writer_restarts)
     session.start()
     return session
 
