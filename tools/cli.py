@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "close": "capstan.tools.commands.close",
     "experiment": "capstan.tools.commands.experiment",
     "config": "capstan.tools.commands.config",
+    "recover": "capstan.tools.commands.recover",
 }
 
 _SUMMARIES: dict[str, str] = {
@@ -46,6 +47,7 @@ _SUMMARIES: dict[str, str] = {
     "close": "close the model loop: residual -> missing effect -> before/after report",
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
     "config": "list or print the shipped configuration files",
+    "recover": "rewrite a log cut off by a crash into a valid indexed file",
 }
 
 

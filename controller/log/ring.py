@@ -66,6 +66,44 @@ def shm_dir() -> Path:
     return p if p.is_dir() and os.access(p, os.W_OK) else Path(tempfile.gettempdir())
 
 
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_rings(directory: str | Path | None = None) -> list[Path]:
+    """Remove ring files whose producer process is gone (a daemon killed with its writer
+    leaves them behind, about 2 MB each). A file counts as stale only if its name is
+    ``capstan-ring-<pid>-<id>``, it starts with the ring magic, and no process ``pid``
+    exists; anything else is left alone.
+
+    :returns: the files removed.
+    """
+    d = Path(directory or shm_dir())
+    removed: list[Path] = []
+    for f in d.glob("capstan-ring-*-*"):
+        try:
+            pid = int(f.name.split("-")[2])
+        except (IndexError, ValueError):
+            continue
+        if pid <= 0 or _pid_alive(pid):
+            continue
+        try:
+            with open(f, "rb") as fh:
+                if fh.read(len(MAGIC)) != MAGIC:
+                    continue
+            f.unlink()
+            removed.append(f)
+        except OSError:
+            continue
+    return removed
+
+
 def dtype_to_json(dtype: np.dtype) -> Any:
     """JSON-serialisable description of a numpy dtype (``numpy.lib.format`` descr)."""
     return dtype_to_descr(np.dtype(dtype))

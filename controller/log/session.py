@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, stored_dtype
-from capstan.controller.log.ring import LogRing
+from capstan.controller.log.ring import LogRing, remove_stale_rings
 from capstan.controller.log.schema import LogFormatError, build_layout
 from capstan.models.common.errors import CapstanError, DataFormatError
 
@@ -127,6 +127,10 @@ class LogSession:
         self.out_dir = Path(out_dir)
         self.prefix = prefix
         self.fault_history_n = fault_history_n
+        stale = remove_stale_rings()
+        if stale:
+            _log.warning("removed %d shared-memory ring(s) of dead processes: %s", len(stale),
+                         ", ".join(p.name for p in stale))
         self.cycle = LogRing.create(record_dtype, capacity, meta={"config_yaml": config_yaml})
         self.events = LogRing.create(EVENT_DTYPE, 256)
         self.stats = LogRing.create(stats_dtype, 64) if stats_dtype is not None else None
@@ -266,7 +270,8 @@ class LogSession:
         those a dead writer had taken but not written."""
         if self._final_dropped is not None:
             return self._final_dropped
-        return self.cycle.dropped + self.lost_in_writers
+        unread = self.cycle.written - self.cycle.read_count if self.lost else 0   # never reach a file
+        return self.cycle.dropped + self.lost_in_writers + unread
 
     def writer_alive(self) -> bool:
         """True while the writer process runs (check it about once a second)."""
@@ -290,9 +295,7 @@ class LogSession:
                 except subprocess.TimeoutExpired:
                     self.proc.kill()
                     self.proc.wait()
-        if self.lost:                         # records left in the ring never reach a file
-            self.lost_in_writers += self.cycle.written - self.cycle.read_count
-        self._final_dropped = self.cycle.dropped + self.lost_in_writers
+        self._final_dropped = self.dropped
         if self.lost:                         # nobody replaced the dead writer: repair its file now
             self._recover_newest()
         for ring in (self.cycle, self.events, self.stats, self.meta):
