@@ -107,6 +107,9 @@ class McapLog:
         files; only for fields replay recomputes).
     :param first_path: exact path of the first file (offline what-if logs); later
         rotated files follow the naming pattern.
+    :param keep_bytes: retention: after each new file is opened, the oldest
+        ``{prefix}_*.mcap`` files of ``out_dir`` are deleted until the others (the open one
+        included) take at most this many bytes (0 = keep everything).
     :param drop_fields: record fields not stored (SI values a reader rebuilds from the
         stored wire values with the ``capstan.derivations`` metadata, see
         :meth:`add_metadata`); the full record dtype goes in the channel metadata.
@@ -120,7 +123,8 @@ class McapLog:
                  compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
                  time_field: str = "t_s", extra_meta: dict[str, str] | None = None,
                  first_path: str | Path | None = None, float32_fields: tuple[str, ...] = (),
-                 zstd_level: int = DEFAULT_ZSTD_LEVEL, drop_fields: tuple[str, ...] = ()) -> None:
+                 zstd_level: int = DEFAULT_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
+                 keep_bytes: int = 0) -> None:
         comp = {"zstd": "zstd", "lz4": "lz4", "none": ""}
         if compression not in comp:
             raise ValueError(f"compression must be one of {', '.join(comp)}, got {compression!r}")
@@ -157,7 +161,11 @@ class McapLog:
         self._last_flush = 0.0
         self._last_t_ns = 0
         self._first_path = Path(first_path) if first_path is not None else None
+        self.keep_bytes = int(keep_bytes)
+        #: files deleted by the retention policy
+        self.deleted: list[Path] = []
         self._open_next()
+        self.apply_retention()
 
     # ------------------------------------------------------------------ files
     def _open_next(self) -> None:
@@ -298,6 +306,34 @@ class McapLog:
         if rotate:
             self._finish_file()
             self._open_next()
+            self.apply_retention()
+
+    def apply_retention(self) -> list[Path]:
+        """Delete the oldest ``{prefix}_*.mcap`` files (never the open one) while the set
+        takes more than ``keep_bytes``; each deletion is logged and written as a NOTICE
+        event into the open file. Returns the files deleted now."""
+        if self.keep_bytes <= 0:
+            return []
+        # names carry the UTC start time and the index: name order is age order (a file
+        # rewritten by recovery keeps its name, not its modification time)
+        files = sorted(self.out_dir.glob(f"{self.prefix}_*.mcap"), key=lambda f: f.name)
+        total = sum(f.stat().st_size for f in files)
+        gone: list[Path] = []
+        for f in files:
+            if total <= self.keep_bytes or f == self.current_file:
+                break
+            size = f.stat().st_size
+            try:
+                f.unlink()
+            except OSError as exc:
+                _log.error("retention: cannot delete %s: %s", f, exc)
+                continue
+            total -= size
+            gone.append(f)
+            _log.info("retention: deleted %s (%d bytes; keeping the newest %d bytes)", f, size, self.keep_bytes)
+            self.write_event(float("nan"), EventKind.NOTICE, f"retention: deleted {f.name} ({size} bytes)")
+        self.deleted += gone
+        return gone
 
     def close(self) -> None:
         """Finish the current file (summary, footer) and close it. Idempotent."""

@@ -83,6 +83,7 @@ class LogSession:
     :param fault_history_n: cycle records attached to a fault event.
     :param flush_interval_s: chunk close period (what a writer kill can lose).
     :param rotate_size_bytes / rotate_time_s: rotation policy (0 = never).
+    :param keep_bytes: retention: keep the newest files up to this many bytes (0 = all).
     :param float32_fields: float64 fields stored rounded to float32 (see
         :func:`capstan.controller.log.schema.build_layout`); never replay inputs or the command.
     :param zstd_level: zstd level of the chunks (1..22).
@@ -101,7 +102,7 @@ class LogSession:
                  rotate_size_bytes: int = 0, rotate_time_s: float = 0.0,
                  compression: str = "zstd", float32_fields: tuple[str, ...] = (),
                  zstd_level: int = LIVE_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
-                 on_writer_loss: str = "restart", max_writer_restarts: int = 3) -> None:
+                 on_writer_loss: str = "restart", max_writer_restarts: int = 3, keep_bytes: int = 0) -> None:
         # fail here, not in the writer
         build_layout(stored_dtype(np.dtype(record_dtype), tuple(drop_fields)), "capstan.Cycle",
                      tuple(float32_fields))
@@ -142,7 +143,7 @@ class LogSession:
                       "--rotate-time-s", str(rotate_time_s), "--compression", compression,
                       "--fault-history", str(fault_history_n),
                       "--float32-fields", ",".join(float32_fields), "--zstd-level", str(int(zstd_level)),
-                      "--drop-fields", ",".join(drop_fields)]
+                      "--drop-fields", ",".join(drop_fields), "--keep-bytes", str(int(keep_bytes))]
         self.proc: subprocess.Popen | None = None
 
     def start(self, ready_timeout_s: float = 10.0) -> None:

@@ -92,7 +92,7 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                parent_pid: int = 0, stop_flag: list[bool] | None = None,
                float32_fields: tuple[str, ...] = (), zstd_level: int = LIVE_ZSTD_LEVEL,
                meta: LogRing | None = None, drop_fields: tuple[str, ...] = (),
-               gap_after_cycle: int | None = None, gap_reason: str = "") -> McapLog:
+               gap_after_cycle: int | None = None, gap_reason: str = "", keep_bytes: int = 0) -> McapLog:
     """Drain the rings into MCAP until the producer closes, dies, or ``stop_flag[0]``.
 
     :param gap_after_cycle: this writer replaces a dead one whose last record on disk had
@@ -108,7 +108,8 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                    stats_dtype=stats.dtype if stats is not None else None,
                    rotate_size_bytes=rotate_size_bytes, rotate_time_s=rotate_time_s,
                    flush_interval_s=flush_interval_s, compression=compression,
-                   float32_fields=float32_fields, zstd_level=zstd_level, drop_fields=drop_fields)
+                   float32_fields=float32_fields, zstd_level=zstd_level, drop_fields=drop_fields,
+                   keep_bytes=keep_bytes)
     hist = _History(cycle.dtype, fault_history_n)
     cycle.set_consumer_ready()
     producer = parent_pid or cycle.producer_pid
@@ -223,6 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--gap-after-cycle", type=int, default=None,
                    help="replacing a dead writer: its last cycle on disk (-1 none)")
     p.add_argument("--gap-reason", default="previous log writer died")
+    p.add_argument("--keep-bytes", type=int, default=0, help="retention: keep the newest files up to this size")
     p.add_argument("--recover", help="first rewrite this log, cut off by a dead writer, into a valid file")
     p.add_argument("--out-dir", required=True)
     p.add_argument("--prefix", default="capstan")
@@ -260,7 +262,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                float32_fields=tuple(f for f in args.float32_fields.split(",") if f),
                zstd_level=args.zstd_level, meta=meta,
                drop_fields=tuple(f for f in args.drop_fields.split(",") if f),
-               gap_after_cycle=args.gap_after_cycle, gap_reason=args.gap_reason)
+               gap_after_cycle=args.gap_after_cycle, gap_reason=args.gap_reason, keep_bytes=args.keep_bytes)
     orphaned = not _alive(args.parent_pid or cycle.producer_pid)
     for ring in (cycle, events, stats, meta):
         if ring is not None:

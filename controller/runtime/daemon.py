@@ -153,7 +153,9 @@ class Daemon:
             self.sink = open_session(lg.dir, ctl.record.dtype, self.cfg.raw, lg.ring_records,
                                      lg.fault_history_cycles, wire=wire_capable(self.devices),
                                      imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)),
-                                     on_writer_loss=lg.on_writer_loss, max_writer_restarts=lg.max_writer_restarts)
+                                     on_writer_loss=lg.on_writer_loss, max_writer_restarts=lg.max_writer_restarts,
+                                     rotate_size_MB=lg.rotate_size_MB, rotate_age_s=lg.rotate_age_s,
+                                     keep_newest_GB=lg.keep_newest_GB)
         old_handlers = self._install_signals()
         dev = self.devices
         rt = None

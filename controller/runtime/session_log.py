@@ -100,7 +100,8 @@ class NullSink:
 def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_records: int,
                  fault_history_cycles: int, prefix: str = "capstan", wire: bool = False,
                  imu_rate_float32: bool = False, on_writer_loss: str = "restart",
-                 max_writer_restarts: int = 3) -> Any:
+                 max_writer_restarts: int = 3, rotate_size_MB: float = 0.0, rotate_age_s: float = 0.0,
+                 keep_newest_GB: float = 0.0) -> Any:
     """Create the rings and start the writer process.
 
     The fields of :data:`capstan.controller.law.records.LOG_FLOAT32_FIELDS` that the record has are
@@ -112,6 +113,7 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
         :func:`send_derivations` once the devices are started).
     :param imu_rate_float32: the IMU sends its rate of turn as float32, so the wire
         field is stored as float32 (exact).
+    :param rotate_size_MB / rotate_age_s / keep_newest_GB: rotation and retention (0 = off).
     :param on_writer_loss / max_writer_restarts: writer supervision policy
         (:class:`capstan.controller.log.session.LogSession`).
 
@@ -133,7 +135,8 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
     session = LogSession(record_dtype, out_dir, config_yaml=text, stats_dtype=STATS_DTYPE,
                          capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
                          float32_fields=f32, drop_fields=drop, on_writer_loss=on_writer_loss,
-                         max_writer_restarts=max_writer_restarts)
+                         max_writer_restarts=max_writer_restarts, rotate_size_bytes=int(rotate_size_MB * 1e6),
+                         rotate_time_s=rotate_age_s, keep_bytes=int(keep_newest_GB * 1e9))
     session.start()
     return session
 
