@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "capstan.tools.commands.experiment",
     "config": "capstan.tools.commands.config",
     "recover": "capstan.tools.commands.recover",
+    "archive": "capstan.tools.commands.archive",
 }
 
 _SUMMARIES: dict[str, str] = {
@@ -48,6 +49,7 @@ _SUMMARIES: dict[str, str] = {
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
     "config": "list or print the shipped configuration files",
     "recover": "rewrite a log cut off by a crash into a valid indexed file",
+    "archive": "rewrite a live log as a lossless columnar archive",
 }
 
 
