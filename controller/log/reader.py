@@ -82,6 +82,8 @@ class _Collector:
         self.channels: dict[int, Channel] = {}
         self.payloads: dict[int, list[Any]] = {}
         self.layouts: dict[int, ProtoLayout] = {}
+        #: channel -> full record dtype to decode into (a live log storing wire values)
+        self.full: dict[int, np.dtype] = {}
         self.metadata: dict[str, dict[str, str]] = {}
 
     def channel(self, ch: Channel) -> None:
@@ -97,10 +99,19 @@ class _Collector:
             if schema is not None and schema.data != layout.schema:
                 raise DataFormatError(f"schema of {ch.topic} does not match its numpy dtype")
             self.layouts[ch.id] = layout
+            if "record_dtype" in ch.metadata:
+                self.full[ch.id] = dtype_from_json(json.loads(ch.metadata["record_dtype"]))
 
     def add(self, ch: int, blob: Any) -> None:
         layout = self.layouts.get(ch)
-        self.payloads[ch].append(layout.decode(blob) if layout is not None else blob)
+        if layout is None:
+            self.payloads[ch].append(blob)
+            return
+        raw = np.frombuffer(blob, dtype=np.uint8) if not isinstance(blob, np.ndarray) else blob.reshape(-1)
+        if raw.size % layout.message_size:
+            raise DataFormatError(f"{layout.message_name}: {raw.size} bytes is not a multiple of the "
+                                  f"message size {layout.message_size}")
+        self.payloads[ch].append(layout.decode_rows(raw.reshape(-1, layout.message_size), self.full.get(ch)))
 
     def walk_chunk(self, chunk: Chunk) -> None:
         if chunk.compression == "zstd":
@@ -132,7 +143,19 @@ class _Collector:
                 sel = chans == ch
                 start, size = m_body[sel] + _MSG_HEAD, m_len[sel] - _MSG_HEAD
                 fixed = self.channels[int(ch)].message_encoding == "protobuf" and np.all(size == size[0])
-                if fixed:                        # fixed-size messages: one blob
+                if fixed and int(ch) in self.layouts:
+                    # fixed-size messages: each run of evenly spaced ones (other channels'
+                    # messages break runs) decoded from the chunk in place
+                    stride = int(size[0]) + _MSG_HEAD + 9
+                    cuts = np.r_[0, np.flatnonzero(np.diff(start) != stride) + 1, len(start)]
+                    for a, b in zip(cuts[:-1].tolist(), cuts[1:].tolist()):
+                        rows = _rows(buf, start[a:b], int(size[0]))
+                        if rows is None:
+                            self.add(int(ch), _gather(buf, start[a:b], int(size[0])))
+                        else:
+                            self.payloads[int(ch)].append(
+                                self.layouts[int(ch)].decode_rows(rows, self.full.get(int(ch))))
+                elif fixed:                      # fixed-size messages: one blob
                     self.add(int(ch), _gather(buf, start, int(size[0])))
                 elif int(ch) in self.layouts:
                     self.add(int(ch), b"".join(data[a:a + b] for a, b in zip(start.tolist(), size.tolist())))
@@ -151,6 +174,16 @@ class _RecordReader(StreamReader):
             stream.read(length)
             return None
         return super()._read_record(opcode, length)
+
+
+def _rows(buf: np.ndarray, start: np.ndarray, size: int) -> np.ndarray | None:
+    """``buf[start[i]:start[i]+size]`` as an ``(n, size)`` strided view if evenly spaced."""
+    n = len(start)
+    stride = int(start[1] - start[0]) if n > 1 else size
+    if stride >= size and (n == 1 or np.all(np.diff(start) == stride)) \
+            and int(start[0]) + (n - 1) * stride + size <= buf.size:
+        return np.lib.stride_tricks.as_strided(buf[int(start[0]):], shape=(n, size), strides=(stride, 1))
+    return None
 
 
 def _gather(buf: np.ndarray, start: np.ndarray, size: int) -> bytes:
@@ -256,7 +289,8 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
     cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
     if "record_dtype" in cyc.metadata:
         records = rebuild_derived(records, dtype_from_json(json.loads(cyc.metadata["record_dtype"])),
-                                  col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p)
+                                  col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p,
+                                  stored_fields=col.layouts[cyc.id].dtype.names)
     stats = _decode_channel(p, col, STATS_TOPIC)
     events: list[dict[str, Any]] = []
     ev_ch = next((c for c in col.channels.values() if c.topic == EVENTS_TOPIC), None)
@@ -276,7 +310,7 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
 
 
 def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json: str | None,
-                    path: Path | str = "") -> np.ndarray:
+                    path: Path | str = "", stored_fields: tuple[str, ...] | None = None) -> np.ndarray:
     """The full cycle records from the stored ones: stored fields copied, every other
     field computed from its wire field with the logged derivation (the drivers' own
     conversion, :mod:`capstan.models.common.wire_units`), bit for bit.
@@ -284,11 +318,15 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
     :raises DataFormatError: if the derivations are missing or malformed, or a field of
         the record is neither stored nor derived.
     """
-    out = np.zeros(len(stored), record_dtype)
-    for name in stored.dtype.names:
-        if name in record_dtype.names:
-            out[name] = stored[name]
-    missing = [n for n in record_dtype.names if n not in stored.dtype.names]
+    have = tuple(stored_fields) if stored_fields is not None else stored.dtype.names
+    if stored.dtype == record_dtype:             # decoded straight into the record dtype
+        out = stored
+    else:
+        out = np.zeros(len(stored), record_dtype)
+        for name in have:
+            if name in record_dtype.names:
+                out[name] = stored[name]
+    missing = [n for n in record_dtype.names if n not in have]
     if not missing:
         return out
     if not derivations_json:
@@ -301,7 +339,7 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
     derivations = {d.field: d for d in (Derivation.from_json(x) for x in items)}
     for name in missing:
         d = derivations.get(name)
-        if d is None or d.source not in stored.dtype.names:
+        if d is None or d.source not in have:
             raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
                                   "wire field")
         out[name] = apply_ops(stored[d.source].astype(np.float64), d.ops)

@@ -142,6 +142,52 @@ class ProtoLayout:
                 out[name] = wire[name]
         return out
 
+    def decode_rows(self, rows: np.ndarray, out_dtype: np.dtype | None = None, check: bool = True) -> np.ndarray:
+        """Decode an ``(n, message_size)`` uint8 array (may be a strided view into a
+        chunk: no copy is made before the one gather) into records of ``out_dtype``
+        (default :attr:`dtype`). Fields of ``out_dtype`` that the messages do not carry
+        are left with arbitrary bytes: the caller fills them.
+
+        :raises LogFormatError: if (with ``check``) a message's tag bytes differ from the layout.
+        """
+        out_dtype = self.dtype if out_dtype is None else np.dtype(out_dtype)
+        if rows.ndim != 2 or rows.shape[1] != self.message_size:
+            raise LogFormatError(f"{self.message_name}: rows of {rows.shape[-1]} bytes, messages have "
+                                 f"{self.message_size}")
+        if check and rows.shape[0]:
+            tags = np.flatnonzero(self._tag_mask)
+            bad = (np.take(rows, tags, axis=1) != self.template[tags]).any(axis=1)
+            if bad.any():
+                raise LogFormatError(f"{self.message_name}: message {int(np.argmax(bad))} does not "
+                                     "match the schema layout")
+        bmap, slow = self._map_for(out_dtype)
+        out = np.take(rows, bmap, axis=1).reshape(-1).view(out_dtype)
+        for name in slow:
+            wdt, woff = self.wire_dtype.fields[name][:2]
+            out[name] = np.ascontiguousarray(rows[:, woff:woff + wdt.itemsize]).reshape(-1).view(wdt)
+        return out
+
+    def _map_for(self, out_dtype: np.dtype) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Byte map and value-converted fields for decoding into ``out_dtype``."""
+        cache = self.__dict__.setdefault("_map_cache", {})
+        if out_dtype in cache:
+            return cache[out_dtype]
+        bmap = np.zeros(out_dtype.itemsize, dtype=np.intp)
+        slow = []
+        for name in out_dtype.names:
+            if name not in self.wire_dtype.names:
+                continue
+            fdt, off = out_dtype.fields[name][:2]
+            wdt, woff = self.wire_dtype.fields[name][:2]
+            same_kind = fdt.kind == wdt.kind or (fdt.kind == "b" and wdt.kind == "u")
+            little = fdt.byteorder in ("<", "|") or (fdt.byteorder == "=" and sys.byteorder == "little")
+            if (same_kind and little and fdt.kind != "f" and fdt.itemsize <= wdt.itemsize) or fdt == wdt:
+                bmap[off:off + fdt.itemsize] = np.arange(woff, woff + fdt.itemsize)
+            else:
+                slow.append(name)
+        cache[out_dtype] = (bmap, tuple(slow))
+        return cache[out_dtype]
+
     @property
     def _byte_map(self) -> tuple[np.ndarray, tuple[str, ...]]:
         """For each byte of a record, the message byte it comes from, plus the fields that
