@@ -50,7 +50,7 @@ def _run(tmp_path: Path, n: int, kill_at: tuple[int, ...], **kw) -> tuple[LogSes
         rec["cycle"], rec["t_s"], rec["x"] = k, 100.0 + k * 1e-3, np.sin(k * 1e-2)
         s.push(rec)
         sent += 1
-        if todo and k >= todo[0] and s.proc is not None and s.cycle.durable[0] > 0:
+        if todo and k >= todo[0] and s.proc is not None and s.proc.poll() is None and s.cycle.durable[0] > 0:
             os.kill(s.proc.pid, signal.SIGKILL)       # from outside (once it has written): no chance to flush
             s.proc.wait()
             todo.pop(0)

@@ -24,6 +24,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Message, McapRecord, Metadata, Schema
+from mcap.reader import SeekingReader
 from mcap.stream_reader import StreamReader
 
 from capstan.controller.log.ring import dtype_from_json
@@ -77,7 +78,11 @@ class _Collector:
     """Gathers records while streaming; protobuf channels with a numpy dtype are
     decoded chunk by chunk (small, cache-friendly arrays), others kept as raw messages."""
 
-    def __init__(self) -> None:
+    def __init__(self, counts: dict[int, int] | None = None) -> None:
+        #: channel -> message count from the file's summary (preallocated decoding)
+        self.counts = dict(counts or {})
+        #: channel -> [preallocated records, records filled]
+        self.buffers: dict[int, list[Any]] = {}
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.payloads: dict[int, list[Any]] = {}
@@ -111,7 +116,25 @@ class _Collector:
         if raw.size % layout.message_size:
             raise DataFormatError(f"{layout.message_name}: {raw.size} bytes is not a multiple of the "
                                   f"message size {layout.message_size}")
-        self.payloads[ch].append(layout.decode_rows(raw.reshape(-1, layout.message_size), self.full.get(ch)))
+        self.store(ch, raw, 0, raw.size // layout.message_size, layout.message_size)
+
+    def store(self, ch: int, buf: np.ndarray, offset: int, n: int, stride: int) -> None:
+        """Decode ``n`` messages of channel ``ch`` at ``buf[offset + k * stride]``: into its
+        preallocated array while it has room (the summary's count), else as a new part."""
+        layout = self.layouts[ch]
+        dtype = self.full.get(ch, layout.dtype)
+        if ch in self.counts and ch not in self.buffers:
+            self.buffers[ch] = [np.empty(self.counts[ch], dtype), 0]
+        data = buf
+        buf = self.buffers.get(ch)
+        if buf is not None and buf[1] + n <= len(buf[0]) and not self.payloads[ch]:
+            layout.decode_span(data, offset, n, stride, dtype, out=buf[0][buf[1]:buf[1] + n])
+            buf[1] += n
+            return
+        if buf is not None and buf[1]:          # the summary's count was wrong: parts from here
+            self.payloads[ch].append(buf[0][:buf[1]])
+            buf[1] = 0
+        self.payloads[ch].append(layout.decode_span(data, offset, n, stride, dtype))
 
     def walk_chunk(self, chunk: Chunk) -> None:
         if chunk.compression == "zstd":
@@ -149,12 +172,7 @@ class _Collector:
                     stride = int(size[0]) + _MSG_HEAD + 9
                     cuts = np.r_[0, np.flatnonzero(np.diff(start) != stride) + 1, len(start)]
                     for a, b in zip(cuts[:-1].tolist(), cuts[1:].tolist()):
-                        rows = _rows(buf, start[a:b], int(size[0]))
-                        if rows is None:
-                            self.add(int(ch), _gather(buf, start[a:b], int(size[0])))
-                        else:
-                            self.payloads[int(ch)].append(
-                                self.layouts[int(ch)].decode_rows(rows, self.full.get(int(ch))))
+                        self.store(int(ch), buf, int(start[a]), b - a, stride if b - a > 1 else int(size[0]))
                 elif fixed:                      # fixed-size messages: one blob
                     self.add(int(ch), _gather(buf, start, int(size[0])))
                 elif int(ch) in self.layouts:
@@ -174,16 +192,6 @@ class _RecordReader(StreamReader):
             stream.read(length)
             return None
         return super()._read_record(opcode, length)
-
-
-def _rows(buf: np.ndarray, start: np.ndarray, size: int) -> np.ndarray | None:
-    """``buf[start[i]:start[i]+size]`` as an ``(n, size)`` strided view if evenly spaced."""
-    n = len(start)
-    stride = int(start[1] - start[0]) if n > 1 else size
-    if stride >= size and (n == 1 or np.all(np.diff(start) == stride)) \
-            and int(start[0]) + (n - 1) * stride + size <= buf.size:
-        return np.lib.stride_tricks.as_strided(buf[int(start[0]):], shape=(n, size), strides=(stride, 1))
-    return None
 
 
 def _gather(buf: np.ndarray, start: np.ndarray, size: int) -> bytes:
@@ -238,7 +246,8 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
         fh = open(p, "rb")
     except OSError as exc:
         raise DataFormatError(f"{p}: cannot open: {exc.strerror or exc}") from exc
-    col = _Collector()
+    col = _Collector(_summary_counts(fh))
+    fh.seek(0)
     truncated = True
     total = p.stat().st_size
     with fh:
@@ -270,6 +279,17 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
     return _assemble(p, col, truncated)
 
 
+def _summary_counts(fh: Any) -> dict[int, int]:
+    """Messages per channel from the file's summary ({} if it has none: cut off)."""
+    try:
+        summary = SeekingReader(fh).get_summary()
+    except (McapError, struct.error, ValueError, OSError, EOFError):
+        return {}
+    if summary is None or summary.statistics is None:
+        return {}
+    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}
+
+
 def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
     ch = next((c for c in col.channels.values() if c.topic == topic), None)
     if ch is None:
@@ -278,7 +298,10 @@ def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
     if layout is None:
         raise DataFormatError(f"{p}: channel {topic} is not protobuf with numpy_dtype metadata")
     parts = col.payloads.get(ch.id, [])
-    return np.concatenate(parts) if parts else np.zeros(0, layout.dtype)
+    buf = col.buffers.get(ch.id)
+    if buf is not None and not parts:
+        return buf[0][:buf[1]]
+    return np.concatenate(parts) if parts else np.zeros(0, col.full.get(ch.id, layout.dtype))
 
 
 def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:

@@ -142,29 +142,50 @@ class ProtoLayout:
                 out[name] = wire[name]
         return out
 
-    def decode_rows(self, rows: np.ndarray, out_dtype: np.dtype | None = None, check: bool = True) -> np.ndarray:
-        """Decode an ``(n, message_size)`` uint8 array (may be a strided view into a
-        chunk: no copy is made before the one gather) into records of ``out_dtype``
-        (default :attr:`dtype`). Fields of ``out_dtype`` that the messages do not carry
-        are left with arbitrary bytes: the caller fills them.
+    def decode_rows(self, rows: np.ndarray, out_dtype: np.dtype | None = None, check: bool = True,
+                    out: np.ndarray | None = None) -> np.ndarray:
+        """Decode a contiguous ``(n, message_size)`` uint8 array of messages into records
+        of ``out_dtype`` (default :attr:`dtype`); see :meth:`decode_span`.
+
+        :raises LogFormatError: on a row size that is not the message size, or (with
+            ``check``) a message whose tag bytes differ from the layout.
+        """
+        if rows.ndim != 2 or rows.shape[1] != self.message_size:
+            raise LogFormatError(f"{self.message_name}: rows of {rows.shape[-1]} bytes, messages have "
+                                 f"{self.message_size}")
+        flat = np.ascontiguousarray(rows).reshape(-1)
+        return self.decode_span(flat, 0, len(rows), self.message_size, out_dtype, check, out)
+
+    def decode_span(self, buf: np.ndarray, offset: int, n: int, stride: int, out_dtype: np.dtype | None = None,
+                    check: bool = True, out: np.ndarray | None = None) -> np.ndarray:
+        """Decode ``n`` messages at ``buf[offset + k * stride]`` (a chunk's bytes, read in
+        place) into records of ``out_dtype`` (default :attr:`dtype`). Fields of
+        ``out_dtype`` the messages do not carry are left unset (the caller fills them);
+        ``out``: a contiguous array of ``n`` records to decode into.
 
         :raises LogFormatError: if (with ``check``) a message's tag bytes differ from the layout.
         """
         out_dtype = self.dtype if out_dtype is None else np.dtype(out_dtype)
-        if rows.ndim != 2 or rows.shape[1] != self.message_size:
-            raise LogFormatError(f"{self.message_name}: rows of {rows.shape[-1]} bytes, messages have "
-                                 f"{self.message_size}")
-        if check and rows.shape[0]:
-            tags = np.flatnonzero(self._tag_mask)
+        if out is None:
+            out = np.empty(n, out_dtype)
+        if not n:
+            return out
+        if check:
+            rows = np.ndarray((n, self.message_size), np.uint8, buffer=buf, offset=offset, strides=(stride, 1))
+            tags = self.__dict__.get("_tags")
+            if tags is None:
+                tags = np.flatnonzero(self._tag_mask)
+                object.__setattr__(self, "_tags", tags)
             bad = (np.take(rows, tags, axis=1) != self.template[tags]).any(axis=1)
             if bad.any():
                 raise LogFormatError(f"{self.message_name}: message {int(np.argmax(bad))} does not "
                                      "match the schema layout")
-        bmap, slow = self._map_for(out_dtype)
-        out = np.take(rows, bmap, axis=1).reshape(-1).view(out_dtype)
-        for name in slow:
-            wdt, woff = self.wire_dtype.fields[name][:2]
-            out[name] = np.ascontiguousarray(rows[:, woff:woff + wdt.itemsize]).reshape(-1).view(wdt)
+        # the messages as a structured array over the bytes (each field a typed, strided
+        # view; numpy converts float32 -> float64 and narrows integers exactly)
+        wire = np.ndarray((n,), self.wire_dtype, buffer=buf, offset=offset, strides=(stride,))
+        for name in out_dtype.names:
+            if name in self.wire_dtype.names:
+                out[name] = wire[name]
         return out
 
     def _map_for(self, out_dtype: np.dtype) -> tuple[np.ndarray, tuple[str, ...]]:
