@@ -72,6 +72,17 @@ EVENT_DTYPE = np.dtype([("t_s", "<f8"), ("kind", "<u4"), ("n_cycles", "<u4"), ("
                         ("reason", "S240")])
 
 
+def _normal_scheduling(pid: int) -> None:
+    """A writer restarted from the real-time loop inherits its SCHED_FIFO priority and CPU
+    pinning: give it normal scheduling on every CPU (lowering is always permitted)."""
+    try:
+        if os.sched_getscheduler(pid) != os.SCHED_OTHER:
+            os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+        os.sched_setaffinity(pid, range(os.cpu_count() or 1))
+    except (OSError, AttributeError) as exc:     # the process may be gone already
+        _log.debug("log writer %d: scheduling not reset: %s", pid, exc)
+
+
 class LogSession:
     """Producer-side handle: owns the rings and the writer process.
 
@@ -170,6 +181,7 @@ class LogSession:
         self.cycle.reset_consumer()
         self._read_at_spawn = self.cycle.read_count
         self.proc = subprocess.Popen(cmd)
+        _normal_scheduling(self.proc.pid)
 
     def _newest_file(self) -> Path | None:
         files = list(self.out_dir.glob(f"{self.prefix}_*.mcap"))
@@ -206,7 +218,12 @@ class LogSession:
         self.writer_failures += 1
         if durable:
             self._last_durable_cycle = last_cycle
-        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        how = f"exit code {code}"
+        if code < 0:
+            try:
+                how = f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                how = f"killed by signal {-code}"
         reason = (f"log writer pid {proc.pid} died ({how}); {lost} records it had not written are lost, "
                   f"{self.cycle.dropped} dropped from the ring so far")
         if self.on_writer_loss == "stop" or self.writer_failures > self.max_writer_restarts:
