@@ -66,3 +66,22 @@ def test_complete_file_is_left_alone_and_garbage_is_refused(tmp_path) -> None:
     with pytest.raises(DataFormatError, match="bad.mcap"):
         recover_log(bad)
     assert not (tmp_path / "bad.mcap.recovering").exists()
+
+
+def test_start_up_recovers_cut_logs_that_no_process_holds(tmp_path) -> None:
+    from capstan.controller.log.session import LogSession
+    blob, r = _full_log(tmp_path)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    cut = logs / "capstan_20260101-000000_000.mcap"
+    cut.write_bytes(blob[:len(blob) // 2])
+    held = logs / "capstan_20260101-000001_000.mcap"
+    held.write_bytes(blob[:len(blob) // 3])
+    want = _streamed(cut)
+    with open(held, "rb"):                                  # e.g. another writer still at work
+        s = LogSession(DT, logs)
+        s.close()
+    assert not read_log(cut).truncated and len(read_log(cut).records) == want
+    with open(cut, "rb") as fh:
+        assert make_reader(fh).get_summary().statistics.message_count == want
+    assert held.read_bytes() == blob[:len(blob) // 3]       # a file in use is left alone

@@ -155,3 +155,52 @@ def recover_log(path: str | Path, out: str | Path | None = None) -> RecoverResul
     _log.info("%s: recovered %d chunks, %d messages; %d bytes cut off (%s)", dst, res.chunks,
               res.messages, res.bytes_dropped, res.stop_reason)
     return res
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _open_by_any_process(path: Path) -> bool:
+    """True if some process has ``path`` open (scans /proc/*/fd; False where unreadable)."""
+    target = os.path.realpath(path)
+    proc = Path("/proc")
+    for d in proc.iterdir() if proc.is_dir() else ():
+        if not d.name.isdigit():
+            continue
+        try:
+            for fd in (d / "fd").iterdir():
+                try:
+                    if os.readlink(fd) == target:
+                        return True
+                except OSError:
+                    continue
+        except OSError:
+            continue
+    return False
+
+
+def recover_cut_logs(directory: str | Path, prefix: str = "capstan") -> list[RecoverResult]:
+    """Recover every ``{prefix}_*.mcap`` in ``directory`` that ends without the MCAP magic
+    (cut off by a crash of daemon and writer together) and that no process has open.
+    Called at start-up, so the logs of a previous crash open everywhere.
+
+    :returns: what was recovered (files that could not be are logged and skipped).
+    """
+    done: list[RecoverResult] = []
+    for f in sorted(Path(directory).glob(f"{prefix}_*.mcap")):
+        try:
+            size = f.stat().st_size
+            with open(f, "rb") as fh:
+                fh.seek(max(0, size - len(_MAGIC)))
+                if fh.read() == _MAGIC:
+                    continue
+        except OSError:
+            continue
+        if _open_by_any_process(f):
+            continue
+        try:
+            done.append(recover_log(f))
+        except (DataFormatError, OSError) as exc:
+            _log.error("%s: cut off and not recoverable: %s", f, exc)
+    return done
+

@@ -139,6 +139,11 @@ class LogSession:
         self.out_dir = Path(out_dir)
         self.prefix = prefix
         self.fault_history_n = fault_history_n
+        if self.out_dir.is_dir():              # logs a crash of daemon and writer left without a footer
+            from capstan.controller.log.recover import recover_cut_logs
+            for res in recover_cut_logs(self.out_dir, prefix):
+                _log.warning("recovered %s, cut off by a crash: %d chunks, %d messages kept", res.path,
+                             res.chunks, res.messages)
         stale = remove_stale_rings()
         if stale:
             _log.warning("removed %d shared-memory ring(s) of dead processes: %s", len(stale),
