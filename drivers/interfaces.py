@@ -44,6 +44,10 @@ class MotorReading:
     :ivar torque_Nm: actual torque (0x6077 scaled by rated torque) [Nm].
     :ivar statusword: raw CiA 402 statusword (0x6041).
     :ivar mode: mode of operation display (0x6061).
+    :ivar t_ns: ``t_s`` as integer monotonic-clock nanoseconds (``t_s = t_ns * 1e-9``) [ns].
+    :ivar position_counts: position as the drive sent it (0x6064) [counts].
+    :ivar velocity_units: velocity as the drive sent it (0x606C) [drive units].
+    :ivar torque_permille: torque as the drive sent it (0x6077) [per mille of rated].
     """
 
     t_s: float = 0.0
@@ -52,6 +56,10 @@ class MotorReading:
     torque_Nm: float = 0.0
     statusword: int = 0
     mode: int = 0
+    t_ns: int = 0
+    position_counts: int = 0
+    velocity_units: int = 0
+    torque_permille: int = 0
 
 
 @dataclass
@@ -62,12 +70,17 @@ class ImuSample:
     :ivar q_out_rad: joint angle from orientation about the configured axis [rad].
     :ivar dq_out_rad_s: joint rate from the rate of turn [rad/s].
     :ivar counter: device packet counter (wraps at 65536), -1 if absent.
+    :ivar t_ns: ``t_s`` as integer monotonic-clock nanoseconds [ns].
+    :ivar rate_rad_s: rate of turn about the joint axis as the sensor sent it, before
+        the sign (``dq_out_rad_s = sign * rate_rad_s``) [rad/s].
     """
 
     t_s: float = 0.0
     q_out_rad: float = 0.0
     dq_out_rad_s: float = 0.0
     counter: int = -1
+    t_ns: int = 0
+    rate_rad_s: float = 0.0
 
 
 @dataclass
@@ -77,10 +90,14 @@ class LoadCellSample:
     :ivar t_s: host monotonic receive time [s].
     :ivar tensions_N: (upper input-side, upper output-side, lower output-side,
         lower input-side) cable tensions [N].
+    :ivar t_ns: ``t_s`` as integer monotonic-clock nanoseconds [ns].
+    :ivar raw_mV_V: the four bridge signals as the amplifier sent them (float32 values) [mV/V].
     """
 
     t_s: float = 0.0
     tensions_N: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    t_ns: int = 0
+    raw_mV_V: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 @runtime_checkable

@@ -45,7 +45,8 @@ def test_shipped_configs_resolve_through_the_installed_package():
     from capstan.tools.offline.shipped import config_path, shipped_names
 
     names = shipped_names()
-    for must in ("hil.yaml", "rig.yaml", "controller.yaml", "motor.yaml", "systemd/capstan.service"):
+    for must in ("hil.yaml", "rig.yaml", "controller.yaml", "motor.yaml", "systemd/capstan.service",
+                 "foxglove/capstan.json"):
         assert must in names
     assert config_path("hil.yaml").read_text() == (REPO / "config" / "hil.yaml").read_text()
     from capstan.drivers.canopen.config import DATA_DIR
@@ -64,7 +65,8 @@ def test_built_wheel_has_one_top_level_name_and_carries_the_data(tmp_path):
     assert {n.split("/")[0] for n in names} == {"capstan", wheel.name.split("-")[0] + "-" + wheel.name.split("-")[1]
                                                 + ".dist-info"}
     for must in ("capstan/config/hil.yaml", "capstan/config/rig.yaml", "capstan/config/controller.yaml",
-                 "capstan/drivers/canopen/data/capstan_drive.eds", "capstan/tools/cli.py"):
+                 "capstan/drivers/canopen/data/capstan_drive.eds", "capstan/tools/cli.py",
+                 "capstan/config/foxglove/capstan.json"):
         assert must in names
     entry = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "capstan = capstan.tools.cli:main" in entry

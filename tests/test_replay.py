@@ -124,10 +124,12 @@ def test_daemon_log_layout_has_every_field_and_replays_bit_exactly(tmp_path: Pat
     msg = fds.file[0].message_type[0]
     assert [fd.name for fd in msg.field] == list(RECORD_DTYPE.names)
     double, float_, fixed64, fixed32 = 1, 2, 6, 7
-    want = {f: float_ if f in LOG_FLOAT32_FIELDS else
-            {"f": double, "u": fixed32}[RECORD_DTYPE[f].kind] if RECORD_DTYPE[f].itemsize <= 8 else None
+    sfixed32, sfixed64 = 15, 16
+    want = {f: float_ if f in LOG_FLOAT32_FIELDS or RECORD_DTYPE[f] == np.float32 else
+            {"f": double, "u": fixed32, "i": sfixed32}[RECORD_DTYPE[f].kind]
             for f in RECORD_DTYPE.names}
     want["cycle"] = fixed64
+    want.update({f: sfixed64 for f in RECORD_DTYPE.names if RECORD_DTYPE[f] == np.int64})
     assert {fd.name: fd.type for fd in msg.field} == want
     # a standard protobuf decoder (as Foxglove's) reads a logged message from that schema
     from google.protobuf import descriptor_pool, message_factory

@@ -34,6 +34,8 @@ COMMANDS: dict[str, str] = {
     "close": "capstan.tools.commands.close",
     "experiment": "capstan.tools.commands.experiment",
     "config": "capstan.tools.commands.config",
+    "recover": "capstan.tools.commands.recover",
+    "archive": "capstan.tools.commands.archive",
 }
 
 _SUMMARIES: dict[str, str] = {
@@ -48,6 +50,8 @@ _SUMMARIES: dict[str, str] = {
     "close": "close the model loop: residual -> missing effect -> before/after report",
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
     "config": "list or print the shipped configuration files",
+    "recover": "rewrite a log cut off by a crash into a valid indexed file",
+    "archive": "rewrite a live log as a lossless columnar archive",
 }
 
 

@@ -17,6 +17,7 @@ config reproduces ``tau_m_cmd_Nm`` bit for bit.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from capstan.controller.law.config import ControllerConfig, Placement, PretensionSource, TorqueLoop
 from capstan.controller.law.feedforward import friction_torque_per_N
@@ -78,6 +79,13 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     return np.concatenate((c, pack_block(ff.effects, *ff.effects_shape)))
 
 
+@njit(cache=True)
+def _step_many(cfg: np.ndarray, st: np.ndarray, records: np.ndarray, indices: np.ndarray) -> None:
+    for k in range(indices.shape[0]):
+        i = indices[k]
+        _s.control_step(cfg, st, records[i:i + 1])
+
+
 class Controller:
     """Config + state + one preallocated cycle record around the Numba step.
 
@@ -102,6 +110,16 @@ class Controller:
         :returns: the safe motor torque command [Nm] (exactly 0.0 while faulted).
         """
         return _s.control_step(self.cfg_array, self.state, self.record)
+
+    def step_many(self, records: np.ndarray, indices: np.ndarray) -> None:
+        """Run the step on ``records[i]`` for each ``i`` of ``indices`` in order, in one
+        compiled loop (offline replay): the same step, state and arithmetic as
+        :meth:`step` per record, each record's controller fields written in place.
+
+        :param records: structured array of :attr:`record`'s dtype.
+        :param indices: int64 record indices, increasing.
+        """
+        _step_many(self.cfg_array, self.state, records, np.ascontiguousarray(indices, dtype=np.int64))
 
     def reset(self) -> None:
         """Clear the state and the fault latch; filters re-initialise on the next step."""

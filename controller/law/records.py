@@ -92,6 +92,19 @@ RECORD_FIELDS: tuple[tuple[str, str, str], ...] = (
     # ---- loop gating (loop, around the step) ------------------------------------
     ("phase", "u1", "loop phase at the step: 0 arming (no step, command 0), 1 running, 2 ramping down [-]"),
     ("cmd_scale", "f8", "factor the loop applied to the step's command (1 running, ramp fraction ramping, 0 arming) [-]"),
+    # ---- wire values (loop, with the measurements): what the devices sent --------
+    ("t_ns", "i8", "loop wake-up time, monotonic clock; t_s = t_ns * 1e-9 [ns]"),
+    ("lc_up_in_mV_V", "f4", "upper input-side bridge signal as the amplifier sends it [mV/V]"),
+    ("lc_up_out_mV_V", "f4", "upper output-side bridge signal [mV/V]"),
+    ("lc_lo_out_mV_V", "f4", "lower output-side bridge signal [mV/V]"),
+    ("lc_lo_in_mV_V", "f4", "lower input-side bridge signal [mV/V]"),
+    ("lc_t_ns", "i8", "receive time of the newest load-cell frame [ns]"),
+    ("imu_rate_rad_s", "f8", "IMU rate of turn about the joint axis as the sensor sends it (before the sign) [rad/s]"),
+    ("imu_t_ns", "i8", "receive time of the newest IMU sample [ns]"),
+    ("q_m_counts", "i4", "drive position feedback 0x6064 [counts]"),
+    ("dq_m_units", "i4", "drive velocity feedback 0x606C [drive units]"),
+    ("tau_m_meas_permille", "i2", "drive torque feedback 0x6077 [per mille of the rated torque]"),
+    ("motor_t_ns", "i8", "receive time of the newest drive feedback [ns]"),
 )
 
 #: the flat structured dtype of one cycle record
@@ -134,6 +147,18 @@ LOG_FLOAT32_FIELDS: tuple[str, ...] = (
     "tau_in_Nm", "T0_meas_N", "tau_g_Nm", "tau_fc_Nm", "tau_in_des_Nm", "err_Nm", "pd_Nm",
     "d_hat_Nm", "tau_m_raw_Nm", "period_s", "compute_s",
 )
+
+#: SI measurement field -> the wire field the driver computes it from (with the
+#: driver's conversion, :mod:`capstan.models.common.wire_units`). The live log stores
+#: the wire field only; a reader rebuilds the SI field bit for bit.
+DERIVED_FROM_WIRE: dict[str, str] = {
+    "t_s": "t_ns",
+    "T_up_in_N": "lc_up_in_mV_V", "T_up_out_N": "lc_up_out_mV_V",
+    "T_lo_out_N": "lc_lo_out_mV_V", "T_lo_in_N": "lc_lo_in_mV_V", "lc_t_s": "lc_t_ns",
+    "dq_out_rad_s": "imu_rate_rad_s", "imu_t_s": "imu_t_ns",
+    "q_m_rad": "q_m_counts", "dq_m_rad_s": "dq_m_units", "tau_m_meas_Nm": "tau_m_meas_permille",
+    "motor_t_s": "motor_t_ns",
+}
 
 #: ``phase`` of a cycle in which the loop did not step the controller (arming)
 PHASE_ARMING = 0

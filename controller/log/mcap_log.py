@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.log.ring import dtype_to_json
-from capstan.controller.log.schema import (MESSAGE_ENCODING, SCHEMA_ENCODING, ProtoLayout, build_layout,
-                                    event_schema_bytes)
+from capstan.controller.log.schema import (MESSAGE_ENCODING, SCHEMA_ENCODING, LogFormatError, ProtoLayout,
+                                           build_layout, event_schema_bytes)
 from capstan.controller.log.mcap_writer import DEFAULT_ZSTD_LEVEL, McapChunkWriter
 
 _log = logging.getLogger(__name__)
@@ -43,6 +43,8 @@ _log = logging.getLogger(__name__)
 CYCLE_TOPIC = "/capstan/cycle"
 EVENTS_TOPIC = "/capstan/events"
 STATS_TOPIC = "/capstan/stats"
+#: metadata record naming how the SI fields follow from the stored wire fields
+DERIVATIONS_META = "capstan.derivations"
 LOG_FORMAT_VERSION = "1"
 #: default chunk close period [s]: a kill of the writer loses at most this, plus one
 #: poll (5 ms) and the compression of one chunk (~30 ms at the live writer's zstd level), so
@@ -57,6 +59,7 @@ class EventKind(enum.IntEnum):
     DROPPED = 2          #: records were dropped because the writer fell behind
     NOTICE = 3           #: informational (start, rotation, shutdown reason)
     PRODUCER_LOST = 4    #: the daemon died without closing the ring
+    WRITER_RESTARTED = 5  #: first event of a file after the previous writer died: the gap
 
 
 def _json_value(x: Any) -> Any:
@@ -69,6 +72,18 @@ def _json_value(x: Any) -> Any:
 def columns_to_json(records: np.ndarray) -> dict[str, list]:
     """Records as ``{field: [values]}`` with JSON-safe values."""
     return {n: [_json_value(v) for v in records[n].tolist()] for n in records.dtype.names}
+
+
+def stored_dtype(record_dtype: np.dtype, drop_fields: tuple[str, ...] = ()) -> np.dtype:
+    """The record dtype without ``drop_fields`` (what a live log stores per cycle).
+
+    :raises LogFormatError: if a dropped field is not in the record.
+    """
+    names = record_dtype.names or ()
+    unknown = [f for f in drop_fields if f not in names]
+    if unknown:
+        raise LogFormatError(f"dropped fields {unknown} are not fields of the record")
+    return np.dtype([(n, record_dtype[n]) for n in names if n not in drop_fields])
 
 
 class McapLog:
@@ -92,6 +107,12 @@ class McapLog:
         files; only for fields replay recomputes).
     :param first_path: exact path of the first file (offline what-if logs); later
         rotated files follow the naming pattern.
+    :param keep_bytes: retention: after each new file is opened, the oldest
+        ``{prefix}_*.mcap`` files of ``out_dir`` are deleted until the others (the open one
+        included) take at most this many bytes (0 = keep everything).
+    :param drop_fields: record fields not stored (SI values a reader rebuilds from the
+        stored wire values with the ``capstan.derivations`` metadata, see
+        :meth:`add_metadata`); the full record dtype goes in the channel metadata.
     :raises ValueError: on an unknown compression or a zstd level out of 1..22.
     :raises LogFormatError: if a dtype cannot be logged.
     """
@@ -102,7 +123,8 @@ class McapLog:
                  compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
                  time_field: str = "t_s", extra_meta: dict[str, str] | None = None,
                  first_path: str | Path | None = None, float32_fields: tuple[str, ...] = (),
-                 zstd_level: int = DEFAULT_ZSTD_LEVEL) -> None:
+                 zstd_level: int = DEFAULT_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
+                 keep_bytes: int = 0) -> None:
         comp = {"zstd": "zstd", "lz4": "lz4", "none": ""}
         if compression not in comp:
             raise ValueError(f"compression must be one of {', '.join(comp)}, got {compression!r}")
@@ -111,7 +133,11 @@ class McapLog:
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.prefix = prefix
-        self.layout: ProtoLayout = build_layout(record_dtype, "capstan.Cycle", tuple(float32_fields))
+        self.record_dtype = np.dtype(record_dtype)
+        self.drop_fields = tuple(drop_fields)
+        self.layout: ProtoLayout = build_layout(stored_dtype(self.record_dtype, self.drop_fields),
+                                                "capstan.Cycle", tuple(float32_fields))
+        self._metadata: dict[str, dict[str, str]] = {}
         self.stats_layout = build_layout(stats_dtype, "capstan.Stats") if stats_dtype is not None else None
         self.config_yaml = config_yaml
         self.float32_fields = tuple(float32_fields)
@@ -125,18 +151,30 @@ class McapLog:
         self.zstd_level = int(zstd_level)
         self.files: list[Path] = []
         self.records_written = 0
+        #: records handed to the OS at the last flush, and the ``cycle`` of the last of them
+        self.records_flushed = 0
+        self.last_flushed_cycle = -1
+        self._last_cycle = -1
         self._fh: Any = None
         self._writer: McapChunkWriter | None = None
         self._opened_at = 0.0
         self._last_flush = 0.0
         self._last_t_ns = 0
         self._first_path = Path(first_path) if first_path is not None else None
+        self.keep_bytes = int(keep_bytes)
+        #: files deleted by the retention policy
+        self.deleted: list[Path] = []
         self._open_next()
+        self.apply_retention()
 
     # ------------------------------------------------------------------ files
     def _open_next(self) -> None:
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-        path = self.out_dir / f"{self.prefix}_{stamp}_{len(self.files):03d}.mcap"
+        index = len(self.files)
+        path = self.out_dir / f"{self.prefix}_{stamp}_{index:03d}.mcap"
+        while path.exists() and self._first_path is None:   # a restarted writer in the same second
+            index += 1
+            path = self.out_dir / f"{self.prefix}_{stamp}_{index:03d}.mcap"
         if self._first_path is not None and not self.files:
             path = self._first_path
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -153,9 +191,13 @@ class McapLog:
         meta.update(self.extra_meta)
         w.add_metadata("capstan.log", meta)
         sid = w.register_schema(self.layout.message_name, SCHEMA_ENCODING, self.layout.schema)
-        self._cycle_ch = w.register_channel(
-            CYCLE_TOPIC, MESSAGE_ENCODING, sid,
-            {"numpy_dtype": meta["numpy_dtype"], "float32_fields": json.dumps(list(self.float32_fields))})
+        ch_meta = {"numpy_dtype": meta["numpy_dtype"], "float32_fields": json.dumps(list(self.float32_fields))}
+        if self.drop_fields:
+            ch_meta["record_dtype"] = json.dumps(dtype_to_json(self.record_dtype))
+            ch_meta["derived_fields"] = json.dumps(list(self.drop_fields))
+        self._cycle_ch = w.register_channel(CYCLE_TOPIC, MESSAGE_ENCODING, sid, ch_meta)
+        for name, values in self._metadata.items():
+            w.add_metadata(name, values)
         eid = w.register_schema("capstan.Event", "jsonschema", event_schema_bytes())
         self._event_ch = w.register_channel(EVENTS_TOPIC, "json", eid)
         self._stats_ch = 0
@@ -177,6 +219,7 @@ class McapLog:
             os.fsync(self._fh.fileno())
             self._fh.close()
             self._writer = None
+            self.records_flushed, self.last_flushed_cycle = self.records_written, self._last_cycle
 
     @property
     def current_file(self) -> Path:
@@ -197,6 +240,8 @@ class McapLog:
             return
         self._add(self._cycle_ch, self.layout, records, self.time_field)
         self.records_written += len(records)
+        if "cycle" in (records.dtype.names or ()):
+            self._last_cycle = int(records["cycle"][-1])
 
     def write_stats(self, records: np.ndarray) -> None:
         """Append ``/capstan/stats`` records (ignored without a stats dtype)."""
@@ -213,13 +258,26 @@ class McapLog:
         if channel == self._cycle_ch:
             self._last_t_ns = int(times[-1])
 
+    def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        """Write a metadata record now and into every later file of the set (rotation)."""
+        assert self._writer is not None
+        self._metadata[name] = dict(values)
+        self._writer.add_metadata(name, dict(values))
+        self.flush()
+
     def write_event(self, t_s: float, kind: EventKind, reason: str = "", code: int = 0,
-                    dropped_total: int = 0, last_cycles: np.ndarray | None = None) -> None:
-        """Append one JSON event on ``/capstan/events`` and flush it to disk at once."""
+                    dropped_total: int = 0, last_cycles: np.ndarray | None = None,
+                    extra: dict[str, Any] | None = None) -> None:
+        """Append one JSON event on ``/capstan/events`` and flush it to disk at once.
+
+        :param extra: more JSON members (e.g. the ``gap_*`` members of WRITER_RESTARTED).
+        """
         assert self._writer is not None
         msg: dict[str, Any] = {"t_s": _json_value(float(t_s)), "kind": int(kind),
                                "kind_name": EventKind(kind).name, "code": int(code),
                                "reason": reason, "dropped_total": int(dropped_total)}
+        if extra:
+            msg.update(extra)
         if last_cycles is not None:
             msg["last_cycles"] = columns_to_json(last_cycles)
         # an event without its own time is placed at the last cycle's time, on the same
@@ -234,6 +292,7 @@ class McapLog:
         if self._writer is not None:
             self._writer.flush()
             self._last_flush = time.monotonic()
+            self.records_flushed, self.last_flushed_cycle = self.records_written, self._last_cycle
 
     def tick(self, now: float | None = None) -> None:
         """Apply the flush and rotation policies; call after each batch."""
@@ -247,6 +306,34 @@ class McapLog:
         if rotate:
             self._finish_file()
             self._open_next()
+            self.apply_retention()
+
+    def apply_retention(self) -> list[Path]:
+        """Delete the oldest ``{prefix}_*.mcap`` files (never the open one) while the set
+        takes more than ``keep_bytes``; each deletion is logged and written as a NOTICE
+        event into the open file. Returns the files deleted now."""
+        if self.keep_bytes <= 0:
+            return []
+        # names carry the UTC start time and the index: name order is age order (a file
+        # rewritten by recovery keeps its name, not its modification time)
+        files = sorted(self.out_dir.glob(f"{self.prefix}_*.mcap"), key=lambda f: f.name)
+        total = sum(f.stat().st_size for f in files)
+        gone: list[Path] = []
+        for f in files:
+            if total <= self.keep_bytes or f == self.current_file:
+                break
+            size = f.stat().st_size
+            try:
+                f.unlink()
+            except OSError as exc:
+                _log.error("retention: cannot delete %s: %s", f, exc)
+                continue
+            total -= size
+            gone.append(f)
+            _log.info("retention: deleted %s (%d bytes; keeping the newest %d bytes)", f, size, self.keep_bytes)
+            self.write_event(float("nan"), EventKind.NOTICE, f"retention: deleted {f.name} ({size} bytes)")
+        self.deleted += gone
+        return gone
 
     def close(self) -> None:
         """Finish the current file (summary, footer) and close it. Idempotent."""

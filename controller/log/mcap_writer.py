@@ -155,6 +155,21 @@ class McapChunkWriter:
         self._record(ch)
         return ch.id
 
+    def copy_schema(self, schema: Schema) -> None:
+        """Write a Schema record of another file with its own id (recovery)."""
+        self._check_open()
+        self._finish_chunk()
+        if all(x.id != schema.id for x in self._schemas):
+            self._schemas.append(schema)
+        self._record(schema)
+
+    def copy_channel(self, channel: Channel) -> None:
+        """Write a Channel record of another file with its own id (recovery)."""
+        self._check_open()
+        self._finish_chunk()
+        self._channels[channel.id] = channel
+        self._record(channel)
+
     # ------------------------------------------------------------------ messages
     def add_messages(self, channel_id: int, log_time_ns: np.ndarray, payload: np.ndarray) -> None:
         """Append fixed-size messages (rows of ``payload``) with their log times [ns].
@@ -245,6 +260,41 @@ class McapChunkWriter:
                 compressed_size=len(packed), uncompressed_size=len(data)))
         self._parts, self._part_bytes, self._part_n = [], 0, 0
         self._index.clear()
+
+    def copy_chunk(self, chunk: Chunk, index: dict[int, np.ndarray]) -> None:
+        """Append a complete Chunk record of another file as it is (no recompression),
+        with message indexes built from ``index`` (channel -> ``(n, 2)`` uint64 rows of
+        log time [ns] and offset in the uncompressed chunk). For :mod:`capstan.controller.log.recover`.
+
+        :raises McapWriteError: after :meth:`finish` or for an unregistered channel.
+        """
+        self._check_open()
+        self._finish_chunk()
+        for ch in index:
+            if ch not in self._channels:
+                raise McapWriteError(f"chunk holds messages of unregistered channel {ch}")
+        start = self._fh.tell()
+        self._record(chunk)
+        chunk_length = self._fh.tell() - start
+        self._chunks += 1
+        offsets: dict[int, int] = {}
+        for ch in sorted(index):
+            entries = np.ascontiguousarray(index[ch], "<u8")
+            entries = entries[np.argsort(entries[:, 0], kind="stable")]
+            offsets[ch] = self._fh.tell()
+            body = entries.tobytes()
+            self._fh.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), ch, len(body)))
+            self._fh.write(body)
+            self._counts[ch] += len(entries)
+        self._chunk_index.append(ChunkIndex(
+            message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
+            chunk_start_offset=start, chunk_length=chunk_length, message_index_offsets=offsets,
+            message_index_length=self._fh.tell() - start - chunk_length, compression=chunk.compression,
+            compressed_size=len(chunk.data), uncompressed_size=chunk.uncompressed_size))
+        if index:
+            t0, t1 = chunk.message_start_time, chunk.message_end_time
+            self._t_first = t0 if self._t_first is None else min(self._t_first, t0)
+            self._t_last = max(self._t_last, t1)
 
     # ------------------------------------------------------------------ policy
     @property

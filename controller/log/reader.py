@@ -24,12 +24,14 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Message, McapRecord, Metadata, Schema
+from mcap.reader import SeekingReader
 from mcap.stream_reader import StreamReader
 
 from capstan.controller.log.ring import dtype_from_json
-from capstan.controller.log.mcap_log import CYCLE_TOPIC, EVENTS_TOPIC, STATS_TOPIC
+from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENTS_TOPIC, STATS_TOPIC
 from capstan.controller.log.schema import ProtoLayout, build_layout
 from capstan.models.common.errors import DataFormatError
+from capstan.models.common.wire_units import Derivation, apply_ops
 
 _log = logging.getLogger(__name__)
 
@@ -76,11 +78,17 @@ class _Collector:
     """Gathers records while streaming; protobuf channels with a numpy dtype are
     decoded chunk by chunk (small, cache-friendly arrays), others kept as raw messages."""
 
-    def __init__(self) -> None:
+    def __init__(self, counts: dict[int, int] | None = None) -> None:
+        #: channel -> message count from the file's summary (preallocated decoding)
+        self.counts = dict(counts or {})
+        #: channel -> [preallocated records, records filled]
+        self.buffers: dict[int, list[Any]] = {}
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.payloads: dict[int, list[Any]] = {}
         self.layouts: dict[int, ProtoLayout] = {}
+        #: channel -> full record dtype to decode into (a live log storing wire values)
+        self.full: dict[int, np.dtype] = {}
         self.metadata: dict[str, dict[str, str]] = {}
 
     def channel(self, ch: Channel) -> None:
@@ -96,10 +104,37 @@ class _Collector:
             if schema is not None and schema.data != layout.schema:
                 raise DataFormatError(f"schema of {ch.topic} does not match its numpy dtype")
             self.layouts[ch.id] = layout
+            if "record_dtype" in ch.metadata:
+                self.full[ch.id] = dtype_from_json(json.loads(ch.metadata["record_dtype"]))
 
     def add(self, ch: int, blob: Any) -> None:
         layout = self.layouts.get(ch)
-        self.payloads[ch].append(layout.decode(blob) if layout is not None else blob)
+        if layout is None:
+            self.payloads[ch].append(blob)
+            return
+        raw = np.frombuffer(blob, dtype=np.uint8) if not isinstance(blob, np.ndarray) else blob.reshape(-1)
+        if raw.size % layout.message_size:
+            raise DataFormatError(f"{layout.message_name}: {raw.size} bytes is not a multiple of the "
+                                  f"message size {layout.message_size}")
+        self.store(ch, raw, 0, raw.size // layout.message_size, layout.message_size)
+
+    def store(self, ch: int, buf: np.ndarray, offset: int, n: int, stride: int) -> None:
+        """Decode ``n`` messages of channel ``ch`` at ``buf[offset + k * stride]``: into its
+        preallocated array while it has room (the summary's count), else as a new part."""
+        layout = self.layouts[ch]
+        dtype = self.full.get(ch, layout.dtype)
+        if ch in self.counts and ch not in self.buffers:
+            self.buffers[ch] = [np.empty(self.counts[ch], dtype), 0]
+        data = buf
+        buf = self.buffers.get(ch)
+        if buf is not None and buf[1] + n <= len(buf[0]) and not self.payloads[ch]:
+            layout.decode_span(data, offset, n, stride, dtype, out=buf[0][buf[1]:buf[1] + n])
+            buf[1] += n
+            return
+        if buf is not None and buf[1]:          # the summary's count was wrong: parts from here
+            self.payloads[ch].append(buf[0][:buf[1]])
+            buf[1] = 0
+        self.payloads[ch].append(layout.decode_span(data, offset, n, stride, dtype))
 
     def walk_chunk(self, chunk: Chunk) -> None:
         if chunk.compression == "zstd":
@@ -131,7 +166,14 @@ class _Collector:
                 sel = chans == ch
                 start, size = m_body[sel] + _MSG_HEAD, m_len[sel] - _MSG_HEAD
                 fixed = self.channels[int(ch)].message_encoding == "protobuf" and np.all(size == size[0])
-                if fixed:                        # fixed-size messages: one blob
+                if fixed and int(ch) in self.layouts:
+                    # fixed-size messages: each run of evenly spaced ones (other channels'
+                    # messages break runs) decoded from the chunk in place
+                    stride = int(size[0]) + _MSG_HEAD + 9
+                    cuts = np.r_[0, np.flatnonzero(np.diff(start) != stride) + 1, len(start)]
+                    for a, b in zip(cuts[:-1].tolist(), cuts[1:].tolist()):
+                        self.store(int(ch), buf, int(start[a]), b - a, stride if b - a > 1 else int(size[0]))
+                elif fixed:                      # fixed-size messages: one blob
                     self.add(int(ch), _gather(buf, start, int(size[0])))
                 elif int(ch) in self.layouts:
                     self.add(int(ch), b"".join(data[a:a + b] for a, b in zip(start.tolist(), size.tolist())))
@@ -204,7 +246,8 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
         fh = open(p, "rb")
     except OSError as exc:
         raise DataFormatError(f"{p}: cannot open: {exc.strerror or exc}") from exc
-    col = _Collector()
+    col = _Collector(_summary_counts(fh))
+    fh.seek(0)
     truncated = True
     total = p.stat().st_size
     with fh:
@@ -236,6 +279,17 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
     return _assemble(p, col, truncated)
 
 
+def _summary_counts(fh: Any) -> dict[int, int]:
+    """Messages per channel from the file's summary ({} if it has none: cut off)."""
+    try:
+        summary = SeekingReader(fh).get_summary()
+    except (McapError, struct.error, ValueError, OSError, EOFError):
+        return {}
+    if summary is None or summary.statistics is None:
+        return {}
+    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}
+
+
 def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
     ch = next((c for c in col.channels.values() if c.topic == topic), None)
     if ch is None:
@@ -244,7 +298,10 @@ def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
     if layout is None:
         raise DataFormatError(f"{p}: channel {topic} is not protobuf with numpy_dtype metadata")
     parts = col.payloads.get(ch.id, [])
-    return np.concatenate(parts) if parts else np.zeros(0, layout.dtype)
+    buf = col.buffers.get(ch.id)
+    if buf is not None and not parts:
+        return buf[0][:buf[1]]
+    return np.concatenate(parts) if parts else np.zeros(0, col.full.get(ch.id, layout.dtype))
 
 
 def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
@@ -252,6 +309,11 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
     records = _decode_channel(p, col, CYCLE_TOPIC)
     if records is None:
         raise DataFormatError(f"{p}: no {CYCLE_TOPIC} channel; not a capstan log")
+    cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
+    if "record_dtype" in cyc.metadata:
+        records = rebuild_derived(records, dtype_from_json(json.loads(cyc.metadata["record_dtype"])),
+                                  col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p,
+                                  stored_fields=col.layouts[cyc.id].dtype.names)
     stats = _decode_channel(p, col, STATS_TOPIC)
     events: list[dict[str, Any]] = []
     ev_ch = next((c for c in col.channels.values() if c.topic == EVENTS_TOPIC), None)
@@ -268,6 +330,43 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
         raise DataFormatError(f"{p}: stored config is not valid YAML: {exc}") from exc
     return LogData(p, records, config_yaml, config if isinstance(config, dict) else {}, meta,
                    events, stats, truncated)
+
+
+def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json: str | None,
+                    path: Path | str = "", stored_fields: tuple[str, ...] | None = None) -> np.ndarray:
+    """The full cycle records from the stored ones: stored fields copied, every other
+    field computed from its wire field with the logged derivation (the drivers' own
+    conversion, :mod:`capstan.models.common.wire_units`), bit for bit.
+
+    :raises DataFormatError: if the derivations are missing or malformed, or a field of
+        the record is neither stored nor derived.
+    """
+    have = tuple(stored_fields) if stored_fields is not None else stored.dtype.names
+    if stored.dtype == record_dtype:             # decoded straight into the record dtype
+        out = stored
+    else:
+        out = np.zeros(len(stored), record_dtype)
+        for name in have:
+            if name in record_dtype.names:
+                out[name] = stored[name]
+    missing = [n for n in record_dtype.names if n not in have]
+    if not missing:
+        return out
+    if not derivations_json:
+        raise DataFormatError(f"{path}: the log stores wire values but no '{DERIVATIONS_META}' metadata; "
+                              f"cannot rebuild {', '.join(missing)}")
+    try:
+        items = json.loads(derivations_json)
+    except ValueError as exc:
+        raise DataFormatError(f"{path}: '{DERIVATIONS_META}' metadata is not JSON: {exc}") from exc
+    derivations = {d.field: d for d in (Derivation.from_json(x) for x in items)}
+    for name in missing:
+        d = derivations.get(name)
+        if d is None or d.source not in have:
+            raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
+                                  "wire field")
+        out[name] = apply_ops(stored[d.source].astype(np.float64), d.ops)
+    return out
 
 
 def read_logs(paths: list[str | Path]) -> LogData:

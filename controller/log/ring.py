@@ -16,6 +16,8 @@ Layout (little-endian, byte offsets)::
     64   u64 write count   (producer only; own cache line)
     128  u64 read count    (consumer only; own cache line)
     136  u64 consumer ready flag (consumer only)
+    144  u64 records durably written by the consumer (handed to the OS; consumer only)
+    152  i64 ``cycle`` field of the last durably written record, -1 if none (consumer only)
     192  u64 dropped count (producer only)
     200  u64 closed flag   (producer only)
     256  JSON {"dtype": numpy descr, "meta": {...}}
@@ -51,6 +53,7 @@ _META_OFFSET = 256
 # indices into the uint64 header view
 _I_HDR_SIZE, _I_CAP, _I_ITEM, _I_META_LEN, _I_PID = 1, 2, 3, 4, 5
 _I_WRITE, _I_READ, _I_READY, _I_DROPPED, _I_CLOSED = 8, 16, 17, 24, 25
+_I_DURABLE, _I_DURABLE_CYCLE = 18, 19
 
 
 class RingError(DataFormatError):
@@ -61,6 +64,44 @@ def shm_dir() -> Path:
     """Directory for ring files: ``/dev/shm`` if present, else the temp directory."""
     p = Path("/dev/shm")
     return p if p.is_dir() and os.access(p, os.W_OK) else Path(tempfile.gettempdir())
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_rings(directory: str | Path | None = None) -> list[Path]:
+    """Remove ring files whose producer process is gone (a daemon killed with its writer
+    leaves them behind, about 2 MB each). A file counts as stale only if its name is
+    ``capstan-ring-<pid>-<id>``, it starts with the ring magic, and no process ``pid``
+    exists; anything else is left alone.
+
+    :returns: the files removed.
+    """
+    d = Path(directory or shm_dir())
+    removed: list[Path] = []
+    for f in d.glob("capstan-ring-*-*"):
+        try:
+            pid = int(f.name.split("-")[2])
+        except (IndexError, ValueError):
+            continue
+        if pid <= 0 or _pid_alive(pid):
+            continue
+        try:
+            with open(f, "rb") as fh:
+                if fh.read(len(MAGIC)) != MAGIC:
+                    continue
+            f.unlink()
+            removed.append(f)
+        except OSError:
+            continue
+    return removed
 
 
 def dtype_to_json(dtype: np.dtype) -> Any:
@@ -219,6 +260,30 @@ class LogRing:
     def set_consumer_ready(self) -> None:
         """Consumer: announce that it is draining (the producer may wait for this)."""
         self._hdr[_I_READY] = 1
+
+    def set_durable(self, records: int, last_cycle: int) -> None:
+        """Consumer: ``records`` read so far are on disk (in the OS), the last of them
+        with cycle number ``last_cycle`` (-1: none)."""
+        self._hdr[_I_DURABLE] = records
+        self._hdr[_I_DURABLE_CYCLE] = np.int64(last_cycle).view(np.uint64)
+
+    @property
+    def durable(self) -> tuple[int, int]:
+        """(records durably written by the consumer, cycle number of the last of them or -1)."""
+        if int(self._hdr[_I_DURABLE]) == 0:
+            return 0, -1
+        return int(self._hdr[_I_DURABLE]), int(self._hdr[_I_DURABLE_CYCLE : _I_DURABLE_CYCLE + 1].view(np.int64)[0])
+
+    @property
+    def read_count(self) -> int:
+        """Records the consumer has taken out of the ring so far."""
+        return int(self._hdr[_I_READ])
+
+    def reset_consumer(self) -> None:
+        """Producer, after its consumer died: clear the ready flag and the durable count
+        for the next consumer (which continues at the read count)."""
+        self._hdr[_I_READY] = 0
+        self._hdr[_I_DURABLE] = 0
 
     @property
     def consumer_ready(self) -> bool:

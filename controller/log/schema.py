@@ -142,6 +142,73 @@ class ProtoLayout:
                 out[name] = wire[name]
         return out
 
+    def decode_rows(self, rows: np.ndarray, out_dtype: np.dtype | None = None, check: bool = True,
+                    out: np.ndarray | None = None) -> np.ndarray:
+        """Decode a contiguous ``(n, message_size)`` uint8 array of messages into records
+        of ``out_dtype`` (default :attr:`dtype`); see :meth:`decode_span`.
+
+        :raises LogFormatError: on a row size that is not the message size, or (with
+            ``check``) a message whose tag bytes differ from the layout.
+        """
+        if rows.ndim != 2 or rows.shape[1] != self.message_size:
+            raise LogFormatError(f"{self.message_name}: rows of {rows.shape[-1]} bytes, messages have "
+                                 f"{self.message_size}")
+        flat = np.ascontiguousarray(rows).reshape(-1)
+        return self.decode_span(flat, 0, len(rows), self.message_size, out_dtype, check, out)
+
+    def decode_span(self, buf: np.ndarray, offset: int, n: int, stride: int, out_dtype: np.dtype | None = None,
+                    check: bool = True, out: np.ndarray | None = None) -> np.ndarray:
+        """Decode ``n`` messages at ``buf[offset + k * stride]`` (a chunk's bytes, read in
+        place) into records of ``out_dtype`` (default :attr:`dtype`). Fields of
+        ``out_dtype`` the messages do not carry are left unset (the caller fills them);
+        ``out``: a contiguous array of ``n`` records to decode into.
+
+        :raises LogFormatError: if (with ``check``) a message's tag bytes differ from the layout.
+        """
+        out_dtype = self.dtype if out_dtype is None else np.dtype(out_dtype)
+        if out is None:
+            out = np.empty(n, out_dtype)
+        if not n:
+            return out
+        if check:
+            rows = np.ndarray((n, self.message_size), np.uint8, buffer=buf, offset=offset, strides=(stride, 1))
+            tags = self.__dict__.get("_tags")
+            if tags is None:
+                tags = np.flatnonzero(self._tag_mask)
+                object.__setattr__(self, "_tags", tags)
+            bad = (np.take(rows, tags, axis=1) != self.template[tags]).any(axis=1)
+            if bad.any():
+                raise LogFormatError(f"{self.message_name}: message {int(np.argmax(bad))} does not "
+                                     "match the schema layout")
+        # the messages as a structured array over the bytes (each field a typed, strided
+        # view; numpy converts float32 -> float64 and narrows integers exactly)
+        wire = np.ndarray((n,), self.wire_dtype, buffer=buf, offset=offset, strides=(stride,))
+        for name in out_dtype.names:
+            if name in self.wire_dtype.names:
+                out[name] = wire[name]
+        return out
+
+    def _map_for(self, out_dtype: np.dtype) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Byte map and value-converted fields for decoding into ``out_dtype``."""
+        cache = self.__dict__.setdefault("_map_cache", {})
+        if out_dtype in cache:
+            return cache[out_dtype]
+        bmap = np.zeros(out_dtype.itemsize, dtype=np.intp)
+        slow = []
+        for name in out_dtype.names:
+            if name not in self.wire_dtype.names:
+                continue
+            fdt, off = out_dtype.fields[name][:2]
+            wdt, woff = self.wire_dtype.fields[name][:2]
+            same_kind = fdt.kind == wdt.kind or (fdt.kind == "b" and wdt.kind == "u")
+            little = fdt.byteorder in ("<", "|") or (fdt.byteorder == "=" and sys.byteorder == "little")
+            if (same_kind and little and fdt.kind != "f" and fdt.itemsize <= wdt.itemsize) or fdt == wdt:
+                bmap[off:off + fdt.itemsize] = np.arange(woff, woff + fdt.itemsize)
+            else:
+                slow.append(name)
+        cache[out_dtype] = (bmap, tuple(slow))
+        return cache[out_dtype]
+
     @property
     def _byte_map(self) -> tuple[np.ndarray, tuple[str, ...]]:
         """For each byte of a record, the message byte it comes from, plus the fields that
@@ -231,6 +298,10 @@ EVENT_JSON_SCHEMA: dict = {
         "code": {"type": "integer", "description": "fault bits / event code"},
         "reason": {"type": "string"},
         "dropped_total": {"type": "integer", "description": "records dropped so far"},
+        "gap_cycles": {"type": "integer",
+                       "description": "WRITER_RESTARTED: cycles missing before this file's first record"},
+        "gap_first_cycle": {"type": "integer", "description": "first missing cycle number"},
+        "gap_last_cycle": {"type": "integer", "description": "last missing cycle number"},
         "last_cycles": {"type": "object",
                         "description": "field name -> list of values of the last N cycles"},
     },

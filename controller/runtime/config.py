@@ -6,7 +6,8 @@ Sections::
     motor:       {backend: <name>, ...backend options}     see drivers.registry
     imu:         {backend: <name>, ...}
     load_cells:  {backend: <name>, ...}
-    logging:     {dir, ring_records, fault_history_cycles}
+    logging:     {dir, ring_records, fault_history_cycles, on_writer_loss: restart|stop,
+                  max_writer_restarts}
     realtime:    {mode: off|warn|enforce, priority, helper_priority, cpus, lock_memory,
                   gil_switch_interval_s}
     loop:        {period_s, busy_tail_s, overrun_streak_fault, sensor_fresh_s, ramp_down_s,
@@ -82,11 +83,22 @@ class LoggingSettings:
     """:ivar dir: directory for MCAP logs and fault reports.
     :ivar ring_records: capacity of the shared-memory ring [records].
     :ivar fault_history_cycles: cycles attached to a fault report (the last N).
+    :ivar on_writer_loss: ``restart`` the log writer into a new file when it dies (the gap
+        written as an event), or ``stop`` the loop (torque ramped to zero).
+    :ivar max_writer_restarts: writer deaths tolerated under ``restart``; one more stops.
+    :ivar rotate_size_MB: start a new file at this size [MB] (0 = never).
+    :ivar rotate_age_s: start a new file after this long [s] (0 = never).
+    :ivar keep_newest_GB: delete the oldest files beyond this total [GB] (0 = keep all).
     """
 
     dir: Path = Path("runs/logs")
     ring_records: int = 8192
     fault_history_cycles: int = 500
+    on_writer_loss: str = "restart"
+    max_writer_restarts: int = 3
+    rotate_size_MB: float = 0.0
+    rotate_age_s: float = 0.0
+    keep_newest_GB: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -142,7 +154,8 @@ class DaemonConfig:
 
 def _logging(c: Mapping[str, Any], base_dir: Path | None) -> LoggingSettings:
     p = "logging"
-    reject_unknown(c, {"dir", "ring_records", "fault_history_cycles"}, p)
+    reject_unknown(c, {"dir", "ring_records", "fault_history_cycles", "on_writer_loss", "max_writer_restarts",
+                       "rotate_size_MB", "rotate_age_s", "keep_newest_GB"}, p)
     d = LoggingSettings()
     raw = c.get("dir", str(d.dir))
     if not isinstance(raw, str) or not raw:
@@ -151,7 +164,19 @@ def _logging(c: Mapping[str, Any], base_dir: Path | None) -> LoggingSettings:
     if not path.is_absolute() and base_dir is not None:
         path = base_dir / path
     return LoggingSettings(path, get_int(c, "ring_records", p, d.ring_records, min_value=64),
-                           get_int(c, "fault_history_cycles", p, d.fault_history_cycles, min_value=1))
+                           get_int(c, "fault_history_cycles", p, d.fault_history_cycles, min_value=1),
+                           get_choice(c, "on_writer_loss", ("restart", "stop"), p, d.on_writer_loss),
+                           get_int(c, "max_writer_restarts", p, d.max_writer_restarts, min_value=0, max_value=100),
+                           _size(c, "rotate_size_MB", p, 1.0), _size(c, "rotate_age_s", p, 10.0),
+                           _size(c, "keep_newest_GB", p, 0.01))
+
+
+def _size(c: Mapping[str, Any], key: str, p: str, smallest: float) -> float:
+    """A rotation/retention setting: 0 (off) or a finite value >= ``smallest``."""
+    v = get_float(c, key, p, 0.0)
+    if v != 0.0 and not (math.isfinite(v) and v >= smallest):
+        raise ConfigError(f"{p}.{key}", f"must be 0 (off) or a finite value >= {smallest}, got {v}")
+    return v
 
 
 def _realtime(c: Mapping[str, Any]) -> RealtimeSettings:

@@ -33,7 +33,8 @@ import numpy as np
 from capstan.controller.runtime import realtime
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.controller.runtime.link_report import device_links, fill_link_stats, link_status, link_summary
-from capstan.controller.runtime.session_log import STATS_DTYPE, LogSink, fill_stats, newest_log, open_session
+from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, newest_log, open_session,
+                                                    send_derivations, wire_capable)
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
 from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, process_cpu_s, shared_abs_sleep
@@ -154,7 +155,11 @@ class Daemon:
         if self.sink is None:
             lg = self.cfg.logging
             self.sink = open_session(lg.dir, ctl.record.dtype, self.cfg.raw, lg.ring_records,
-                                     lg.fault_history_cycles)
+                                     lg.fault_history_cycles, wire=wire_capable(self.devices),
+                                     imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)),
+                                     on_writer_loss=lg.on_writer_loss, max_writer_restarts=lg.max_writer_restarts,
+                                     rotate_size_MB=lg.rotate_size_MB, rotate_age_s=lg.rotate_age_s,
+                                     keep_newest_GB=lg.keep_newest_GB)
         old_handlers = self._install_signals()
         dev = self.devices
         rt = None
@@ -165,6 +170,7 @@ class Daemon:
             dev.imu.start()
             dev.load_cells.start()
             dev.motor.start()
+            send_derivations(self.sink, dev)
             t2 = time.monotonic()
             helpers = [t for t in threading.enumerate() if t is not threading.current_thread()]
             raised = realtime.apply_to_threads(self.cfg.realtime, rt, helpers)
@@ -198,6 +204,7 @@ class Daemon:
         stats_buf = np.zeros(1, dtype=STATS_DTYPE)
         links = device_links(dev)
         writer_ok = True
+        writer_lost = False
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
         ping = note.ping_interval_s
@@ -232,11 +239,14 @@ class Daemon:
                 r["dq_m_rad_s"] = m.velocity_rad_s
                 r["tau_m_meas_Nm"] = m.torque_Nm
                 r["motor_t_s"] = m_t = m.t_s
+                r["q_m_counts"], r["dq_m_units"] = m.position_counts, m.velocity_units
+                r["tau_m_meas_permille"], r["motor_t_ns"] = m.torque_permille, m.t_ns
             s = imu.poll()
             if s is not None:
                 r["q_out_rad"] = s.q_out_rad
                 r["dq_out_rad_s"] = s.dq_out_rad_s
                 r["imu_t_s"] = imu_t = s.t_s
+                r["imu_rate_rad_s"], r["imu_t_ns"] = s.rate_rad_s, s.t_ns
                 r["imu_new"] = 1
             else:
                 r["imu_new"] = 0
@@ -245,8 +255,12 @@ class Daemon:
                 T = c.tensions_N
                 r["T_up_in_N"], r["T_up_out_N"], r["T_lo_out_N"], r["T_lo_in_N"] = T[0], T[1], T[2], T[3]
                 r["lc_t_s"] = lc_t = c.t_s
+                W = c.raw_mV_V
+                r["lc_up_in_mV_V"], r["lc_up_out_mV_V"], r["lc_lo_out_mV_V"], r["lc_lo_in_mV_V"] = W[0], W[1], W[2], W[3]
+                r["lc_t_ns"] = c.t_ns
             r["cycle"] = cycle
             r["t_s"] = t_s
+            r["t_ns"] = wake
             if sl.streak >= streak_fault:
                 ext |= FaultBits.OVERRUN_STREAK
                 reason = reason or f"{sl.streak} consecutive late cycles (limit {streak_fault})"
@@ -321,6 +335,10 @@ class Daemon:
                     line += "; links " + link_status(links)
                 log.info("%s", line)
                 note.status(line)
+                if _writer_lost(sink) and not writer_lost:
+                    writer_lost = self._stop = True
+                    log.error("log writer lost (logging.on_writer_loss: %s); ramping torque to zero",
+                              self.cfg.logging.on_writer_loss)
                 if not writer_ok and sink.writer_alive():
                     writer_ok = True
                 elif writer_ok and not sink.writer_alive():
@@ -334,6 +352,10 @@ class Daemon:
             wake, late = sl.wait()
         self.phase = Phase.STOPPED
         self._finish_summary(sl, stats, sink, cpu0, wall0)
+        if writer_lost:
+            text = f"log writer lost: {getattr(sink, 'lost_reason', 'not restarted')}; torque ramped to zero"
+            self.summary.faults.append(text)
+            raise ControlFaultError(text, None)
 
     def _fault(self, motor: Any, sink: LogSink, hist: np.ndarray, cycles: int, bits: int,
                reason: str, t_s: float, gap_s: float) -> None:
@@ -407,6 +429,12 @@ class Daemon:
     def _restore_signals(old: dict[int, Any]) -> None:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def _writer_lost(sink: Any) -> bool:
+    """Supervise the log writer (restarts it by policy); True if it is lost for good."""
+    supervise = getattr(sink, "supervise", None)
+    return callable(supervise) and int(supervise()) == 2      # WriterHealth.LOST
 
 
 def _cpu_snapshot(sink: Any) -> dict[str, float]:

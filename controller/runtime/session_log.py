@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from capstan.controller.law.records import LOG_FLOAT32_FIELDS
+from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS
 from capstan.controller.runtime.link_report import LINK_STATS_FIELDS
 from capstan.controller.runtime.timing import WindowReport
 
@@ -49,6 +49,12 @@ class LogSink(Protocol):
     def writer_alive(self) -> bool:
         """True while the writer runs."""
 
+    def metadata(self, name: str, values: dict[str, Any]) -> bool:
+        """Queue a metadata record for every log file (e.g. the wire derivations)."""
+
+    def supervise(self) -> int:
+        """Check the writer about once a second; a WriterHealth value (2 = lost: stop)."""
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         """Finish the log (writer drains and closes the file)."""
 
@@ -60,6 +66,7 @@ class NullSink:
         self.pushed = 0
         self.stats: list[np.ndarray] = []
         self.faults: list[tuple[float, str, int]] = []
+        self.meta: dict[str, dict[str, Any]] = {}
         self.closed = False
 
     def push(self, record: np.ndarray) -> bool:
@@ -81,33 +88,81 @@ class NullSink:
     def writer_alive(self) -> bool:
         return True
 
+    def metadata(self, name: str, values: dict[str, Any]) -> bool:
+        self.meta[name] = dict(values)
+        return True
+
+    def supervise(self) -> int:
+        return 0
+
     def close(self, timeout_s: float = 10.0) -> int | None:
         self.closed = True
         return 0
 
 
 def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_records: int,
-                 fault_history_cycles: int, prefix: str = "capstan") -> Any:
+                 fault_history_cycles: int, prefix: str = "capstan", wire: bool = False,
+                 imu_rate_float32: bool = False, on_writer_loss: str = "restart",
+                 max_writer_restarts: int = 3, rotate_size_MB: float = 0.0, rotate_age_s: float = 0.0,
+                 keep_newest_GB: float = 0.0) -> Any:
     """Create the rings and start the writer process.
 
     The fields of :data:`capstan.controller.law.records.LOG_FLOAT32_FIELDS` that the record has are
     stored as float32 (recomputed by a replay, or integer-nanosecond timing).
+
+    :param wire: store the measurements as the devices sent them: the SI fields of
+        :data:`capstan.controller.law.records.DERIVED_FROM_WIRE` are left out (a reader
+        rebuilds them with the ``capstan.derivations`` metadata the daemon sends with
+        :func:`send_derivations` once the devices are started).
+    :param imu_rate_float32: the IMU sends its rate of turn as float32, so the wire
+        field is stored as float32 (exact).
+    :param rotate_size_MB / rotate_age_s / keep_newest_GB: rotation and retention (0 = off).
+    :param on_writer_loss / max_writer_restarts: writer supervision policy
+        (:class:`capstan.controller.log.session.LogSession`).
 
     :param config: the daemon config mapping, stored as YAML in every log file.
     :returns: a started :class:`capstan.controller.log.writer.LogSession`.
     :raises OSError: if the rings or the log directory cannot be created.
     :raises LogWriterError: if the writer process does not start.
     """
-    from capstan.controller.log.writer import LogSession
+    from capstan.controller.log.session import LogSession
     out_dir.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(config, sort_keys=False) if not isinstance(config, str) else config
     names = record_dtype.names or ()
     f32 = tuple(f for f in LOG_FLOAT32_FIELDS if f in names and record_dtype[f] == np.float64)
+    drop: tuple[str, ...] = ()
+    if wire:
+        drop = tuple(f for f, src in DERIVED_FROM_WIRE.items() if f in names and src in names)
+        if imu_rate_float32 and "imu_rate_rad_s" in names:
+            f32 += ("imu_rate_rad_s",)
     session = LogSession(record_dtype, out_dir, config_yaml=text, stats_dtype=STATS_DTYPE,
                          capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
-                         float32_fields=f32)
+                         float32_fields=f32, drop_fields=drop, on_writer_loss=on_writer_loss,
+                         max_writer_restarts=max_writer_restarts, rotate_size_bytes=int(rotate_size_MB * 1e6),
+                         rotate_time_s=rotate_age_s, keep_bytes=int(keep_newest_GB * 1e9))
     session.start()
     return session
+
+
+def wire_capable(devices: Any) -> bool:
+    """True if every device says how its SI values follow from its wire values
+    (``derivations()``), so the log can store wire values only."""
+    return all(callable(getattr(d, "derivations", None)) for d in (devices.motor, devices.imu, devices.load_cells))
+
+
+def send_derivations(sink: Any, devices: Any) -> None:
+    """Send the started devices' wire -> SI derivations (and the loop clock's) to the log
+    as the ``capstan.derivations`` metadata record."""
+    from capstan.controller.log.mcap_log import DERIVATIONS_META
+    from capstan.models.common.wire_units import NS_TO_S, Derivation
+    items = [Derivation("t_s", "t_ns", NS_TO_S)]
+    for dev in (devices.motor, devices.imu, devices.load_cells):
+        get = getattr(dev, "derivations", None)
+        if callable(get):
+            items += get()
+    put = getattr(sink, "metadata", None)
+    if callable(put):
+        put(DERIVATIONS_META, {"derivations": [d.to_json() for d in items]})
 
 
 def newest_log(out_dir: Path, prefix: str = "capstan", since_s: float = 0.0) -> Path | None:

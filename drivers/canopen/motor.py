@@ -60,6 +60,7 @@ from capstan.drivers.canopen.cia402 import OpMode, State402, decode_statusword, 
 from capstan.drivers.canopen.emcy import EmcyFault, decode_emcy
 from capstan.drivers.interfaces import MotorReading
 from capstan.drivers.canopen.config import MotorConfig
+from capstan.models.common.wire_units import NS_TO_S, Derivation, motor_torque_ops, scale_ops, seconds_from_ns
 from capstan.models.common.errors import DeviceTimeoutError, DriveFaultError, DriverError, HeartbeatLostError
 
 __all__ = ["CanopenMotor", "ObjectMissingError"]
@@ -319,8 +320,10 @@ class CanopenMotor(Ds402Control):
             can_id, data, t_s = rx.popleft()
             if can_id == tpdo1 and len(data) >= 7:
                 rd.statusword, rd.mode, pos = _TPDO1.unpack_from(data)
+                rd.position_counts = pos
                 rd.position_rad = pos * self.config.position_rad_per_count
-                rd.t_s, new = t_s, True
+                rd.t_ns = round(t_s * 1e9)
+                rd.t_s, new = seconds_from_ns(rd.t_ns), True
                 self.tpdo1_received += 1
                 self.state = decode_statusword(rd.statusword)
                 if rd.statusword & 0x0800:
@@ -329,9 +332,11 @@ class CanopenMotor(Ds402Control):
                     self._limit_active = False
             elif can_id == tpdo2 and len(data) >= 6:
                 vel, tq = _TPDO2.unpack_from(data)
+                rd.velocity_units, rd.torque_permille = vel, tq
                 rd.velocity_rad_s = vel * self.config.velocity_rad_s_per_unit
                 rd.torque_Nm = tq * self.rated_torque_Nm / 1000.0
-                rd.t_s, new = t_s, True
+                rd.t_ns = round(t_s * 1e9)
+                rd.t_s, new = seconds_from_ns(rd.t_ns), True
                 self.tpdo2_received += 1
             elif can_id == hb and data:
                 self._hb_last_s = t_s
@@ -373,6 +378,14 @@ class CanopenMotor(Ds402Control):
                            self.safety_objects.get("0x6072", "?"),
                            self._torque_permille * self.rated_torque_Nm / 1000.0)
         self._limit_active = True
+
+    def derivations(self) -> list[Derivation]:
+        """How a log rebuilds the SI feedback from the logged wire values: exactly the
+        conversions of the TPDO decoding (valid after :meth:`start`: the rated torque)."""
+        return [Derivation("q_m_rad", "q_m_counts", scale_ops(self.config.position_rad_per_count)),
+                Derivation("dq_m_rad_s", "dq_m_units", scale_ops(self.config.velocity_rad_s_per_unit)),
+                Derivation("tau_m_meas_Nm", "tau_m_meas_permille", motor_torque_ops(self.rated_torque_Nm)),
+                Derivation("motor_t_s", "motor_t_ns", NS_TO_S)]
 
     def poll(self) -> MotorReading | None:
         """Drain received frames without blocking; the newest reading or None if no new TPDO.

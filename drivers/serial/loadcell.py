@@ -19,6 +19,7 @@ from capstan.drivers.serial.loadcell_protocol import FRAME_LEN, N_CHANNELS, Load
 from capstan.drivers.serial.port_io import port_fd, read_available
 from capstan.models.common.config_tools import get_float, get_int, reject_unknown
 from capstan.models.common.errors import ConfigError, DeviceTimeoutError, DriverError
+from capstan.models.common.wire_units import NS_TO_S, Derivation, seconds_from_ns, tension_ops
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +115,15 @@ class SerialLoadCells:
         return (s[0] * raw_mV_V[0] + o[0] - t[0], s[1] * raw_mV_V[1] + o[1] - t[1],
                 s[2] * raw_mV_V[2] + o[2] - t[2], s[3] * raw_mV_V[3] + o[3] - t[3])
 
+    def derivations(self) -> list[Derivation]:
+        """How a log rebuilds the tensions from the logged bridge signals: exactly
+        :meth:`to_tensions_N` (valid after :meth:`start`, which may tare)."""
+        s, o, t = self.config.scale_N_per_mV_V, self.config.offset_N, self.tare_N
+        names = (("T_up_in_N", "lc_up_in_mV_V"), ("T_up_out_N", "lc_up_out_mV_V"),
+                 ("T_lo_out_N", "lc_lo_out_mV_V"), ("T_lo_in_N", "lc_lo_in_mV_V"))
+        return [Derivation(f, src, tension_ops(s[k], o[k], t[k])) for k, (f, src) in enumerate(names)] \
+            + [Derivation("lc_t_s", "lc_t_ns", NS_TO_S)]
+
     def start(self) -> None:
         """Open the port, wait for the stream, tare if configured (blocks up to ``timeout_s``).
 
@@ -176,7 +186,9 @@ class SerialLoadCells:
             return None
         raw = frames[-1]
         self.last_raw_mV_V = raw
-        return LoadCellSample(t_s=time.monotonic(), tensions_N=self.to_tensions_N(raw))
+        t_ns = time.monotonic_ns()
+        return LoadCellSample(t_s=seconds_from_ns(t_ns), tensions_N=self.to_tensions_N(raw),
+                              t_ns=t_ns, raw_mV_V=raw)
 
     def close(self) -> None:
         """Close the port (idempotent)."""

@@ -33,10 +33,11 @@ from capstan.drivers.serial.xsens_config import (  # noqa: F401  (re-exported: t
     BASE_RATE_HZ, JointAxis, OrientationOutput, XsensConfig, output_configuration, packet_size_bytes,
 )
 from capstan.drivers.serial.xsens_protocol import (
-    LEN_EXTENDED, MAX_DATA_LEN, Mid, MtData2, XbusParser, mtdata2_max_len, parse_mtdata2,
+    LEN_EXTENDED, MAX_DATA_LEN, Mid, MtData2, Precision, XbusParser, mtdata2_max_len, parse_mtdata2,
 )
 from capstan.drivers.serial.xsens_startup import XbusLink, configure_output, find_device, switch_baudrate
 from capstan.models.common.errors import DriverError, ProtocolError
+from capstan.models.common.wire_units import NS_TO_S, Derivation, scale_ops, seconds_from_ns
 
 log = logging.getLogger(__name__)
 
@@ -227,8 +228,21 @@ class XsensImu:
         if newest is None:
             return None
         (q, dq), c = newest
-        return ImuSample(t_s=time.monotonic(), q_out_rad=q, dq_out_rad_s=dq,
-                         counter=-1 if c is None else c)
+        t_ns = time.monotonic_ns()
+        rate = self.last_packet.rate_of_turn_rad_s[int(self.config.joint_axis)]
+        return ImuSample(t_s=seconds_from_ns(t_ns), q_out_rad=q, dq_out_rad_s=dq,
+                         counter=-1 if c is None else c, t_ns=t_ns, rate_rad_s=rate)
+
+    def derivations(self) -> list[Derivation]:
+        """How a log rebuilds ``dq_out_rad_s`` and ``imu_t_s`` from the logged wire values:
+        exactly :func:`joint_from_mtdata2` (``sign * rate``) and the receive clock."""
+        return [Derivation("dq_out_rad_s", "imu_rate_rad_s", scale_ops(self.config.sign)),
+                Derivation("imu_t_s", "imu_t_ns", NS_TO_S)]
+
+    @property
+    def rate_is_float32(self) -> bool:
+        """True if the sensor sends its rate of turn as float32 (``precision: float32``)."""
+        return self.config.precision == Precision.FLOAT32
 
     def close(self) -> None:
         """Close the port (idempotent)."""

@@ -36,7 +36,10 @@ from capstan.controller.log.writer import LIVE_ZSTD_LEVEL, LogSession, run_write
 from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, McapLog
 from capstan.controller.law.records import (LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS,
                                 loop_command)
+from capstan.controller.law.records import DERIVED_FROM_WIRE
+from capstan.controller.log.mcap_log import DERIVATIONS_META
 from capstan.drivers.serial.xsens import twist_angle_rad, wrap_pi
+from capstan.models.common.wire_units import NS_TO_S, Derivation, motor_torque_ops, scale_ops, tension_ops
 from capstan.tools.bench.log_floor import WireScales, floor_table
 
 #: limits raised so the open-loop synthetic run never saturates or faults: the command
@@ -53,6 +56,21 @@ RATED_TORQUE_NM = 20.0
 #: sensor noise as the simulated rig's (config/hil.yaml plant.noise) and drive feedback
 NOISE_TENSION_N, NOISE_ANGLE_RAD, NOISE_RATE_RAD_S = 0.3, 5e-4, 2e-3
 NOISE_DQ_M_RAD_S, NOISE_TAU_M_NM = 1e-3, 0.05
+
+
+#: the conversions the drivers would publish for the scales above (the live run stores
+#: wire values only, as the daemon does)
+WIRE_DERIVATIONS = [
+    Derivation("t_s", "t_ns", NS_TO_S), Derivation("lc_t_s", "lc_t_ns", NS_TO_S),
+    Derivation("imu_t_s", "imu_t_ns", NS_TO_S), Derivation("motor_t_s", "motor_t_ns", NS_TO_S),
+    *(Derivation(f, src, tension_ops(LC_SCALE_N_PER_MV_V, 0.0, 0.0)) for f, src in (
+        ("T_up_in_N", "lc_up_in_mV_V"), ("T_up_out_N", "lc_up_out_mV_V"),
+        ("T_lo_out_N", "lc_lo_out_mV_V"), ("T_lo_in_N", "lc_lo_in_mV_V"))),
+    Derivation("dq_out_rad_s", "imu_rate_rad_s", scale_ops(1.0)),
+    Derivation("q_m_rad", "q_m_counts", scale_ops(RAD_PER_COUNT)),
+    Derivation("dq_m_rad_s", "dq_m_units", scale_ops(RAD_S_PER_UNIT)),
+    Derivation("tau_m_meas_Nm", "tau_m_meas_permille", motor_torque_ops(RATED_TORQUE_NM)),
+]
 
 
 def realistic_records(n: int, seed: int = 7) -> np.ndarray:
@@ -86,19 +104,23 @@ def realistic_records(n: int, seed: int = 7) -> np.ndarray:
         wake = deadline + 2_000 + int(abs(rng.normal(0, 3_000)))
         ph = 2 * np.pi * 0.5 * k * 1e-3
         tau = 3.0 * np.sin(ph) + 0.3 * np.sin(6.2 * ph)
-        rec["cycle"], rec["t_s"] = k, wake * 1e-9
+        rec["cycle"], rec["t_s"], rec["t_ns"] = k, wake * 1e-9, wake
         raw = np.array([150 + tau / 0.08, 146 + 0.9 * tau / 0.08, 146 - 0.9 * tau / 0.08, 150 - tau / 0.08])
         raw = ((raw + rng.normal(0, NOISE_TENSION_N, 4)) / LC_SCALE_N_PER_MV_V).astype(">f4").tolist()
         rec["T_up_in_N"], rec["T_up_out_N"], rec["T_lo_out_N"], rec["T_lo_in_N"] = (
             LC_SCALE_N_PER_MV_V * x + 0.0 - 0.0 for x in raw)
-        rec["lc_t_s"] = (wake + int(rng.uniform(20_000, 60_000))) / 1e9
+        rec["lc_up_in_mV_V"], rec["lc_up_out_mV_V"], rec["lc_lo_out_mV_V"], rec["lc_lo_in_mV_V"] = raw
+        rec["lc_t_ns"] = wake + int(rng.uniform(20_000, 60_000))
+        rec["lc_t_s"] = rec["lc_t_ns"] * 1e-9
         if k % 5 in (0, 2):
             half = 0.5 * (0.4 * np.sin(ph - 0.3) + rng.normal(0, NOISE_ANGLE_RAD))
             quat = np.array([np.cos(half), 0.0, 0.0, np.sin(half)], ">f4").tolist()
             rec["q_out_rad"] = wrap_pi(1.0 * twist_angle_rad(quat, 2) + 0.0)
-            rec["dq_out_rad_s"] = 1.0 * float(np.float32(0.4 * np.pi * np.cos(ph - 0.3)
-                                                          + rng.normal(0, NOISE_RATE_RAD_S)))
-            rec["imu_t_s"] = (wake + int(rng.uniform(60_000, 90_000))) / 1e9
+            rec["imu_rate_rad_s"] = float(np.float32(0.4 * np.pi * np.cos(ph - 0.3)
+                                                     + rng.normal(0, NOISE_RATE_RAD_S)))
+            rec["dq_out_rad_s"] = 1.0 * rec["imu_rate_rad_s"]
+            rec["imu_t_ns"] = wake + int(rng.uniform(60_000, 90_000))
+            rec["imu_t_s"] = rec["imu_t_ns"] * 1e-9
             rec["imu_new"] = 1
         else:
             rec["imu_new"] = 0
@@ -110,7 +132,9 @@ def realistic_records(n: int, seed: int = 7) -> np.ndarray:
         rec["tau_m_meas_Nm"] = permille * RATED_TORQUE_NM / 1000.0
         rx_mono_ns = wake - int(rng.uniform(100_000, 400_000))
         to_mono = (wake + 5_000) / 1e9 - (wake + 5_000 + wall_minus_mono_ns) / 1e9
-        rec["motor_t_s"] = (rx_mono_ns + wall_minus_mono_ns) / 1e9 + to_mono
+        rec["motor_t_ns"] = round(((rx_mono_ns + wall_minus_mono_ns) / 1e9 + to_mono) * 1e9)
+        rec["motor_t_s"] = rec["motor_t_ns"] * 1e-9
+        rec["q_m_counts"], rec["dq_m_units"], rec["tau_m_meas_permille"] = counts, vel, permille
         rec["tau_out_ref_Nm"] = 0.0
         rec["phase"], rec["cmd_scale"] = 1, 1.0
         tau_cmd = loop_command(ctl.step(), 1.0, int(rec["fault_bits"]))
@@ -130,9 +154,11 @@ def live_run(records: np.ndarray, rate_hz: float, out_dir: Path, flush_interval_
     writer's CPU time from the children's rusage: the writer is this process's only child)."""
     s = LogSession(RECORD_DTYPE, out_dir, yaml.safe_dump(CONFIG), stats_dtype=STATS_DTYPE,
                    flush_interval_s=flush_interval_s, compression=compression,
-                   float32_fields=float32_fields, zstd_level=zstd_level)
+                   float32_fields=float32_fields + ("imu_rate_rad_s",), zstd_level=zstd_level,
+                   drop_fields=tuple(DERIVED_FROM_WIRE))
     cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     s.start()
+    s.metadata(DERIVATIONS_META, {"derivations": [d.to_json() for d in WIRE_DERIVATIONS]})
     time.sleep(1.0)                      # writer start-up (imports) before the paced loop
     n = len(records)
     push_ns = np.empty(n, np.int64)
@@ -170,7 +196,9 @@ def file_bytes(records: np.ndarray, out_dir: Path, float32_fields: tuple[str, ..
     t0 = time.process_time()
     log = McapLog(out_dir, "offline", records.dtype, yaml.safe_dump(CONFIG), flush_interval_s=0,
                   compression=compression, zstd_level=zstd_level,
-                  float32_fields=tuple(f for f in float32_fields if f in records.dtype.names))
+                  float32_fields=tuple(f for f in float32_fields if f in records.dtype.names),
+                  # wire layout: t_s gives the message times but is not stored (t_ns is)
+                  drop_fields=("t_s",) if "lc_t_ns" in records.dtype.names else ())
     for i in range(0, len(records), chunk_records):
         log.write_records(records[i:i + chunk_records])
         log.flush()
@@ -185,10 +213,14 @@ def file_bytes(records: np.ndarray, out_dir: Path, float32_fields: tuple[str, ..
 FIELD_GROUPS: dict[str, tuple[str, ...]] = {
     "cycle, flags, gating": ("cycle", "imu_new", "ext_fault_bits", "tau_out_ref_Nm", "fault_bits", "late",
                              "phase", "cmd_scale"),
-    "loop time t_s": ("t_s",),
-    "load cells (4 tensions, receive time)": ("T_up_in_N", "T_up_out_N", "T_lo_out_N", "T_lo_in_N", "lc_t_s"),
-    "IMU (q_out, dq_out, receive time)": ("q_out_rad", "dq_out_rad_s", "imu_t_s"),
-    "drive feedback (q_m, dq_m, tau_m, receive time)": ("q_m_rad", "dq_m_rad_s", "tau_m_meas_Nm", "motor_t_s"),
+    "loop time t_ns": ("t_ns",),
+    "load cells (4 bridge signals, receive time)": ("T_up_in_N", "T_up_out_N", "T_lo_out_N", "T_lo_in_N", "lc_t_s",
+                                                    "lc_up_in_mV_V", "lc_up_out_mV_V", "lc_lo_out_mV_V",
+                                                    "lc_lo_in_mV_V", "lc_t_ns"),
+    "IMU (q_out, rate, receive time)": ("q_out_rad", "dq_out_rad_s", "imu_t_s", "imu_rate_rad_s", "imu_t_ns"),
+    "drive feedback (counts, units, per mille, receive time)": ("q_m_rad", "dq_m_rad_s", "tau_m_meas_Nm", "motor_t_s",
+                                                                "q_m_counts", "dq_m_units", "tau_m_meas_permille",
+                                                                "motor_t_ns"),
     "step intermediates and state": ("tau_in_Nm", "T0_meas_N", "tau_g_Nm", "tau_fc_Nm", "tau_in_des_Nm",
                                      "err_Nm", "pd_Nm", "d_hat_Nm", "tau_m_raw_Nm"),
     "command tau_m_cmd_Nm": ("tau_m_cmd_Nm",),
@@ -287,7 +319,15 @@ def main() -> int:
         data = read_log(r["files"][0])
         exact = all(data.records[f].tobytes() == recs[f].tobytes() for f in RECORD_DTYPE.names if f not in f32)
         print(f"  read back: {len(data.records)} records, bit-identical (except float32 fields): {exact}")
-        costs = group_costs(recs, out / "groups", f32, args.zstd_level, chunk_records)
+        # the offline figures below use the stored (wire) layout of the live log
+        stored = np.zeros(n, np.dtype([(f, RECORD_DTYPE[f]) for f in RECORD_DTYPE.names if f not in DERIVED_FROM_WIRE]))
+        for f in stored.dtype.names:
+            stored[f] = recs[f]
+        stored_t = np.zeros(n, np.dtype(stored.dtype.descr + [("t_s", "<f8")]))
+        for f in stored.dtype.names:
+            stored_t[f] = stored[f]
+        stored_t["t_s"] = recs["t_s"]              # message times (not stored in the payload by the daemon)
+        costs = group_costs(stored_t, out / "groups", f32 + ("imu_rate_rad_s",), args.zstd_level, chunk_records)
         print("  bytes per record by field group (file size with minus without the group):")
         for label, b in costs.items():
             print(f"    {label:48s} {b:6.1f}")
@@ -304,7 +344,7 @@ def main() -> int:
               f"{dur / wall:.0f}x real time (read {wall - res.wall_s:.2f} s + step {res.wall_s:.2f} s), "
               f"max |dtau_m| = {res.max_abs_dtau_m_Nm}")
         for level in (int(x) for x in args.levels.split(",") if x.strip()):
-            size, cpu = file_bytes(recs, out / "levels", f32, level, chunk_records)
+            size, cpu = file_bytes(stored_t, out / "levels", f32 + ("imu_rate_rad_s",), level, chunk_records)
             print(f"zstd level {level:2d}: {size / n:6.1f} B/record = "
                   f"{size / n * args.rate_hz * 3600 / 1e6:6.1f} MB/hour, writing {cpu / n * 1e6:5.1f} us "
                   f"CPU/record ({100 * cpu / n * args.rate_hz:.1f} % of one CPU)")

@@ -30,14 +30,15 @@ def run(args: argparse.Namespace) -> int:
 
     :raises DataFormatError: if the log cannot be read or mapped.
     """
-    from capstan.controller.log.reader import read_log, read_logs
+    from capstan.controller.log.reader import read_logs
+    from capstan.tools.offline.archive import read_any
     from capstan.tools.offline.progress import Progress
     from capstan.models.common.measurement_table import write_table
 
     paths = [Path(p) for p in args.log]
     big = sum(p.stat().st_size for p in paths if p.exists()) > 20_000_000
     bar = Progress("read", enabled=big and len(paths) == 1)
-    data = read_log(paths[0], bar.update) if len(paths) == 1 else read_logs(paths)
+    data = read_any(paths[0], bar.update) if len(paths) == 1 else read_logs(paths)
     bar.done()
     table = records_to_table(data.records, data.config, ", ".join(str(p) for p in paths))
     if data.truncated:

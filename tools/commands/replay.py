@@ -72,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
     :raises DataFormatError: if the log is unreadable or lacks replay fields.
     :raises ConfigError: if the logged or override config is invalid.
     """
-    from capstan.controller.log.reader import read_log, read_logs
+    from capstan.controller.log.reader import read_logs
+    from capstan.tools.offline.archive import read_any
     from capstan.controller.log.mcap_log import McapLog
     from capstan.controller.law.records import MEASUREMENT_FIELDS, STEP_OUTPUT_FIELDS
     from capstan.tools.offline.progress import Progress
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     big = sum(p.stat().st_size for p in paths if p.exists()) > 20_000_000
     bar = Progress("read  ", enabled=big and len(paths) == 1)
-    data = read_log(paths[0], bar.update) if len(paths) == 1 else read_logs(paths)
+    data = read_any(paths[0], bar.update) if len(paths) == 1 else read_logs(paths)
     bar.done()
     read_s = time.perf_counter() - t_start
     if data.meta.get("file_index", "0") != "0":

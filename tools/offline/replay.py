@@ -40,6 +40,10 @@ class ReplayResult:
 _SENTINEL = np.array([0x7FF4DEADBEEF0001], dtype=np.uint64).view(np.float64)[0]
 
 
+class _Done(Exception):
+    """The batch path stepped every record."""
+
+
 class _NoInPlace(Exception):
     """The controller did not write its outputs into a swapped-in record."""
 
@@ -103,7 +107,18 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
     step = ctl.step
     own_record = ctl.record
     t0 = time.perf_counter()
+    batch = getattr(ctl, "step_many", None)
     try:
+        if callable(batch):
+            # compiled loop over the records in place (capstan Controller), in slices so
+            # the progress callback runs
+            if progress is not None:
+                progress(0, n)
+            for a in range(0, todo.size, 1 << 16):
+                batch(out, todo[a:a + (1 << 16)])
+                if progress is not None:
+                    progress(int(todo[min(a + (1 << 16), todo.size) - 1]), n)
+            raise _Done
         # fast path: point the controller's record at row i of the result, so the step
         # reads the logged inputs there and writes its outputs in place
         if todo.size:
@@ -121,6 +136,8 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
                 step()
                 if progress is not None and not k & 0xFFFF:
                     progress(i, n)
+    except _Done:
+        pass
     except _NoInPlace:
         # the controller does not step on whatever ``record`` refers to: copy in and out
         ctl.record = own_record

@@ -2,7 +2,7 @@
 file of another layout through an import description, or a daemon MCAP log.
 
 * ``*.csv`` -> :func:`capstan.models.common.measurement_table.read_table`
-* ``*.mcap`` -> :func:`capstan.controller.log.reader.read_log` + the export mapping of
+* ``*.mcap`` -> :func:`capstan.tools.offline.archive.read_any` (live log or archive) + the export mapping of
   ``capstan.tools.offline.log_table.records_to_table``; only the measurement channels (and channels
   whose name says temperature) are kept, not the controller's internal terms, which
   would otherwise "explain" the residual by echoing the measurement
@@ -29,11 +29,11 @@ _TAU_OUT_FIELDS = ("tau_out_Nm", "tau_out_meas_Nm", "tau_link_Nm", "tau_load_Nm"
 
 def _from_mcap(path: Path) -> MeasurementTable:
     try:
-        from capstan.controller.log.reader import read_log
+        from capstan.tools.offline.archive import read_any
         from capstan.tools.offline.log_table import records_to_table
     except ImportError as exc:  # pragma: no cover - both modules are part of the package
         raise DataFormatError(f"{path}: MCAP logs need controller.log_reader ({exc})") from exc
-    data = read_log(path)
+    data = read_any(path)                    # a live log or its archive
     table = records_to_table(data.records, data.config, str(path))
     cols = {k: v for k, v in table.columns.items() if k in STANDARD_COLUMNS or "temp" in k.lower()}
     if "tau_out" not in cols and {"T_up_out_N", "T_lo_out_N"} <= set(table.columns):

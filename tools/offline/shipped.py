@@ -34,7 +34,7 @@ def shipped_names() -> list[str]:
     """Names (relative paths) of every shipped configuration file."""
     root = config_dir()
     return sorted(p.relative_to(root).as_posix() for p in root.rglob("*")
-                  if p.is_file() and p.suffix in (".yaml", ".service"))
+                  if p.is_file() and p.suffix in (".yaml", ".service", ".json"))
 
 
 def config_path(name: str) -> Path:

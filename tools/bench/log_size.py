@@ -1,0 +1,72 @@
+"""What a recorded log costs on disk, and where (run on demand, prints figures).
+
+    .venv/bin/python -m capstan.tools.bench.log_size LOG.mcap [--fields]
+
+Prints cycles, covered time, file bytes, bytes per cycle and MB/hour extrapolated from
+the log's own duration (``bytes / (t_last - t_first) * 3600``), split into chunk
+payload and message-index bytes (read with the ``mcap`` package's indexed reader). With
+``--fields``: each stored field's cost after compression, measured by re-encoding the
+log's cycles without it (zstd at the live level, the live chunk length).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import zstandard
+from mcap.reader import make_reader
+
+from capstan.controller.log.mcap_log import CYCLE_TOPIC, DEFAULT_FLUSH_INTERVAL_S, stored_dtype
+from capstan.controller.log.mcap_writer import message_rows
+from capstan.controller.log.reader import read_log
+from capstan.controller.log.schema import build_layout
+from capstan.controller.log.writer import LIVE_ZSTD_LEVEL
+
+
+def _encoded_bytes(records: np.ndarray, dtype: np.dtype, f32: tuple[str, ...], chunk: int) -> float:
+    """Compressed bytes per cycle of the message records (header + payload) in chunks."""
+    lay = build_layout(dtype, "capstan.Cycle", tuple(f for f in f32 if f in dtype.names))
+    t = np.round(records["t_s"] * 1e9).astype(np.int64)
+    rows = message_rows(1, t, lay.encode(records))
+    cz = zstandard.ZstdCompressor(level=LIVE_ZSTD_LEVEL)
+    return sum(len(cz.compress(rows[i:i + chunk].tobytes())) for i in range(0, len(rows), chunk)) / len(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns 0."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("log", type=Path)
+    p.add_argument("--fields", action="store_true", help="per-field compressed cost")
+    args = p.parse_args(argv)
+    size = args.log.stat().st_size
+    with open(args.log, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    chunk_b = sum(c.compressed_size for c in summary.chunk_indexes)
+    index_b = sum(c.message_index_length for c in summary.chunk_indexes)
+    cyc_ch = next(c for c in summary.channels.values() if c.topic == CYCLE_TOPIC)
+    data = read_log(args.log)
+    n = len(data.records)
+    dur = float(data.records["t_s"][-1] - data.records["t_s"][0]) if n > 1 else 0.0
+    print(f"{args.log}: {n} cycles over {dur:.1f} s, {size} B")
+    print(f"  {size / n:.1f} B/cycle = {size / dur * 3600 / 1e6:.0f} MB/hour "
+          f"(chunks {chunk_b / n:.1f} B/cycle, message indexes {index_b / n:.1f} B/cycle)")
+    if args.fields:
+        f32 = tuple(json.loads(cyc_ch.metadata.get("float32_fields", "[]")))
+        dropped = tuple(json.loads(cyc_ch.metadata.get("derived_fields", "[]")))
+        dt = stored_dtype(data.records.dtype, dropped)
+        chunk = int(round(DEFAULT_FLUSH_INTERVAL_S * 1000))
+        base = _encoded_bytes(data.records, dt, f32, chunk)
+        print(f"  cycle messages re-encoded: {base:.1f} B/cycle compressed; per stored field "
+              "(size with minus without it):")
+        for name in dt.names:
+            cost = base - _encoded_bytes(data.records, stored_dtype(dt, (name,)), f32, chunk)
+            print(f"    {name:22s} {str(dt[name]) if name not in f32 else 'float32':8s} {cost:6.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
