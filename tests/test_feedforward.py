@@ -9,6 +9,7 @@ import pytest
 
 from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
+from capstan.models.common.errors import ConfigError
 from capstan.controller.law.feedforward import friction_curve_Nm, friction_torque_per_N
 
 MU = 0.052
@@ -121,6 +122,46 @@ def test_step_uses_the_reduced_model_friction_law():
     ff = ctl.cfg.feedforward
     for k, dq in enumerate((0.003, 0.04, -0.2, 1.5)):
         rec = _cycle(ctl, k, T0=170.0, dq=dq)
-        expected = stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
+        v = math.copysign(max(abs(dq) - ff.dead_band_rad_s, 0.0), dq)     # the rest band
+        expected = stribeck_friction_Nm.py_func(v, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
                                                 ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
         assert float(rec["tau_fc_Nm"]) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+
+
+def test_direction_does_not_follow_gyro_noise_at_rest():
+    """At rest, 2 mrad/s gyro noise (the HIL plant's and the Xsens' figure) must not flip
+    the friction torque: with the default band (3 sigma) at most a few samples in a
+    thousand leave it, and those by less than a sigma, so the feedforward's std at rest is
+    below 1 % of the friction torque; with the band off (the old tanh(alpha dq)) the
+    direction follows the noise (about half the samples change sign)."""
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 0.002, 4000)
+    quiet = _ctl()
+    m = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0},
+         "stability": {"gyro_noise_rad_s": 0.0}}    # the old feedforward: only allowed on noise-free rates
+    buzzing = Controller(ControllerConfig.from_mapping(m))
+    tq = np.array([float(_cycle(quiet, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(noise)])
+    tb = np.array([float(_cycle(buzzing, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(noise)])
+    tau_fc = quiet.friction_torque_per_N * 150.0
+    flips = lambda t: int(np.sum(np.sign(t[1:]) * np.sign(t[:-1]) < 0))
+    assert flips(tb) > 1000
+    assert flips(tq) <= 8
+    assert np.std(tq) < 0.01 * tau_fc < np.std(tb)
+
+
+def test_rest_band_is_continuous_and_moving_friction_is_kept():
+    """Leaving the band the feedforward starts from 0 (no step); at 0.1 rad/s (slow hand
+    motion) it still gives more than 80 % of the moving friction."""
+    ctl = _ctl()
+    band = ctl.cfg.feedforward.dead_band_rad_s
+    just_out = float(_cycle(ctl, 0, T0=150.0, dq=band + 1e-6)["tau_fc_Nm"])
+    moving = float(_cycle(ctl, 1, T0=150.0, dq=0.1)["tau_fc_Nm"])
+    tau_fc = ctl.friction_torque_per_N * 150.0
+    assert 0.0 < just_out < 1e-3 * tau_fc
+    assert moving > 0.8 * tau_fc
+
+
+def test_rest_band_below_the_gyro_noise_is_refused():
+    with pytest.raises(ConfigError, match="dead_band_rad_s"):
+        ControllerConfig.from_mapping({"feedforward": {"dead_band_rad_s": 0.001},
+                                       "stability": {"gyro_noise_rad_s": 0.002}})

@@ -38,6 +38,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         eta_s_rad_s: 0.05            # Stribeck velocity
         alpha_s_rad: 50.0            # tanh steepness [s/rad]
         b_vis_Nms_rad: 0.0           # viscous term
+        dead_band_rad_s: 0.006       # |dq_out| below this is rest: the shape sees sign(dq) max(|dq| - band, 0),
+                                     # so the direction cannot follow gyro noise (>= 2 x stability.gyro_noise_rad_s)
         effects: []                  # learned effects added to the friction torque: the fragment
                                      # of `capstan close` (format models/closure/effects_runtime.py,
                                      # evaluation controller/law/learned_effects.py)
@@ -54,6 +56,19 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         imu_timeout_s: 0.010         # STALE_IMU when t_s - imu_t_s exceeds this
         loadcell_timeout_s: 0.005
         motor_timeout_s: 0.005
+      stability:                     # the loop check at start-up (controller/law/stability.py)
+        io_delay_cycles: 2           # command -> measured effect beyond the zero-order hold [cycles]
+        stiffness_range_Nm_rad: [200.0, 300.0]   # K_c range the gains must be robust over
+        inertia_tolerance: 0.3       # J_m +- 30 %
+        link_inertia_kg_m2: 0.17     # the link in slip (output free)
+        link_damping_Nms_rad: 0.02
+        link_stiffness_Nm_rad: 3.78  # gravity stiffness m g l at hanging
+        stick_stiffness_factor: 11.0 # input-side stiffness in sheath stick / K_c: only the cable up to
+                                     # where friction grips deforms (N + 1 for the N-node model; 46-49 Hz ring)
+        min_phase_margin_deg: 45.0
+        min_gain_margin_dB: 6.0
+        tension_noise_N: 0.3         # load-cell noise per channel (std) for the noise gains
+        gyro_noise_rad_s: 0.002      # gyro noise (std)
 
 All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
 (with the routing as its curvature profile) so a log stores the exact config used.
@@ -137,6 +152,7 @@ class FeedforwardConfig:
     eta_s_rad_s: float = 0.05
     alpha_s_rad: float = 50.0
     b_vis_Nms_rad: float = 0.0
+    dead_band_rad_s: float = 0.006
     effects: tuple[dict[str, Any], ...] = ()
     effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
 
@@ -162,6 +178,23 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class StabilitySettings:
+    """What the loop check assumes and requires (``controller.stability``, SI)."""
+
+    io_delay_cycles: int = 2
+    stiffness_range_Nm_rad: tuple[float, float] = (200.0, 300.0)
+    inertia_tolerance: float = 0.3
+    link_inertia_kg_m2: float = 0.17
+    link_damping_Nms_rad: float = 0.02
+    link_stiffness_Nm_rad: float = 3.78
+    stick_stiffness_factor: float = 11.0
+    min_phase_margin_deg: float = 45.0
+    min_gain_margin_dB: float = 6.0
+    tension_noise_N: float = 0.3
+    gyro_noise_rad_s: float = 0.002
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     """Frozen controller configuration; build with :meth:`from_mapping`."""
 
@@ -175,6 +208,7 @@ class ControllerConfig:
     m_g_l_Nm: float = 3.78
     feedforward: FeedforwardConfig = field(default_factory=FeedforwardConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    stability: StabilitySettings = field(default_factory=StabilitySettings)
 
     # ------------------------------------------------------------------ parsing
     @staticmethod
@@ -187,7 +221,7 @@ class ControllerConfig:
         if not isinstance(cfg, Mapping):
             raise ConfigError(prefix, f"must be a mapping, got {type(cfg).__name__}")
         reject_unknown(cfg, {"dt_s", "torque_loop", "plant", "ldo", "feedback", "filters", "gravity",
-                             "feedforward", "safety"}, prefix)
+                             "feedforward", "safety", "stability"}, prefix)
         d = ControllerConfig()
         dt = get_float(cfg, "dt_s", prefix, d.dt_s, min_value=1e-5, max_value=0.1)
         nyq = 0.5 / dt
@@ -234,7 +268,13 @@ class ControllerConfig:
 
         ff = _feedforward_from_mapping(section(cfg, "feedforward", prefix, required=False), f"{prefix}.feedforward")
         safety = _safety_from_mapping(section(cfg, "safety", prefix, required=False), f"{prefix}.safety")
-        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety)
+        stab = _stability_from_mapping(section(cfg, "stability", prefix, required=False), f"{prefix}.stability")
+        if ff.enabled and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
+            raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
+                              f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
+                              f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
+                              f"follow noise at rest, got {ff.dead_band_rad_s}")
+        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab)
 
     def to_mapping(self) -> dict[str, Any]:
         """The YAML structure of :meth:`from_mapping` with every value explicit, such
@@ -256,10 +296,13 @@ class ControllerConfig:
                 "pretension": ff.pretension.name.lower(), "T0_fixed_N": ff.T0_fixed_N,
                 "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
                 "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
+                "dead_band_rad_s": ff.dead_band_rad_s,
                 "effects": [dict(e) for e in ff.effects],
                 "effects_shape": dict(zip(_EFFECTS_SHAPE_KEYS, ff.effects_shape)),
             },
             "safety": asdict(self.safety),
+            "stability": {**asdict(self.stability),
+                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad)},
         }
 
 
@@ -276,7 +319,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
 
     reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
                        "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
-                       "effects", "effects_shape"}, p)
+                       "dead_band_rad_s", "effects", "effects_shape"}, p)
     d = FeedforwardConfig()
     if "routing" in c:
         routing = Routing.from_mapping(section(c, "routing", p), f"{p}.routing")
@@ -310,6 +353,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         zeta_s=zeta_s, zeta_c=zeta_c,
         eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
         b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),
+        dead_band_rad_s=get_float(c, "dead_band_rad_s", p, d.dead_band_rad_s, min_value=0.0, max_value=1.0),
         effects=effects, effects_shape=shape,
     )
 
@@ -322,6 +366,12 @@ def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
     reject_unknown(c, {"tau_max_Nm", "dtau_max_Nm_s", "tau_fault_Nm", "dtau_fault_Nm_s", "imu_timeout_s",
                        "loadcell_timeout_s", "motor_timeout_s"}, p)
     d = SafetyConfig()
+    if "tau_max_Nm" in c and "tau_fault_Nm" not in c:
+        # the user set the clamp only: a clamp above the default fault limit is the clamp's error
+        tmax = get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True)
+        if tmax > d.tau_fault_Nm:
+            raise ConfigError(f"{p}.tau_max_Nm", f"must be <= tau_fault_Nm = {d.tau_fault_Nm} "
+                                                f"(the hard fault limit above the clamp), got {tmax}")
     s = SafetyConfig(
         get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True),
         get_float(c, "dtau_max_Nm_s", p, d.dtau_max_Nm_s, min_value=0.0, min_exclusive=True),
@@ -339,3 +389,33 @@ def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
     if not math.isfinite(s.tau_max_Nm):
         raise ConfigError(f"{p}.tau_max_Nm", "must be finite")
     return s
+
+
+def _stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
+    """Parse ``controller.stability``.
+
+    :raises ConfigError: naming the key.
+    """
+    d = StabilitySettings()
+    reject_unknown(c, set(StabilitySettings.__dataclass_fields__), p)
+    delay = c.get("io_delay_cycles", d.io_delay_cycles)
+    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 20:
+        raise ConfigError(f"{p}.io_delay_cycles", f"must be an integer in [0, 20], got {delay!r}")
+    rng = c.get("stiffness_range_Nm_rad", list(d.stiffness_range_Nm_rad))
+    if (not isinstance(rng, (list, tuple)) or len(rng) != 2
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in rng)
+            or not 0.0 < rng[0] <= rng[1]):
+        raise ConfigError(f"{p}.stiffness_range_Nm_rad", f"must be [low, high] with 0 < low <= high, got {rng!r}")
+
+    def pos(key: str, hi: float) -> float:
+        return get_float(c, key, p, getattr(d, key), min_value=0.0, max_value=hi)
+
+    return StabilitySettings(
+        delay, (float(rng[0]), float(rng[1])),
+        get_float(c, "inertia_tolerance", p, d.inertia_tolerance, min_value=0.0, max_value=0.9),
+        get_float(c, "link_inertia_kg_m2", p, d.link_inertia_kg_m2, min_value=0.0, min_exclusive=True),
+        pos("link_damping_Nms_rad", 1e3), pos("link_stiffness_Nm_rad", 1e4),
+        get_float(c, "stick_stiffness_factor", p, d.stick_stiffness_factor, min_value=1.0, max_value=1000.0),
+        get_float(c, "min_phase_margin_deg", p, d.min_phase_margin_deg, min_value=0.0, max_value=90.0),
+        get_float(c, "min_gain_margin_dB", p, d.min_gain_margin_dB, min_value=0.0, max_value=40.0),
+        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0))

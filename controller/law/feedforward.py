@@ -37,6 +37,16 @@ def friction_torque_per_N(ff: FeedforwardConfig, r_out_m: float) -> float:
 
 
 @njit(cache=True)
+def dead_band(dq_rad_s: float, band_rad_s: float) -> float:
+    """``sign(dq) max(|dq| - band, 0)`` [rad/s]: the rest band of the feedforward's velocity."""
+    if dq_rad_s > band_rad_s:
+        return dq_rad_s - band_rad_s
+    if dq_rad_s < -band_rad_s:
+        return dq_rad_s + band_rad_s
+    return 0.0
+
+
+@njit(cache=True)
 def friction_feedforward_Nm(dq_out_rad_s: float, tau_fc_Nm: float, zeta_s: float, zeta_c: float,
                             eta_s_rad_s: float, alpha_s_rad: float, b_vis_Nms_rad: float) -> float:
     """Feedforward friction torque [Nm] (eq 21) at the output rate ``dq_out_rad_s``."""
@@ -48,3 +58,11 @@ def friction_curve_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardCon
     """Vectorised eq (21) for plots and tests [Nm]."""
     return np.array([friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c, ff.eta_s_rad_s,
                                              ff.alpha_s_rad, ff.b_vis_Nms_rad) for v in np.ravel(dq_rad_s)])
+
+
+def rest_feedforward_series_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardConfig) -> np.ndarray:
+    """The feedforward as the step evaluates it (rest dead band, then eq 21) on a series of
+    gyro rates [Nm] (no learned effects, gain 1): for noise studies at rest."""
+    return np.array([friction_feedforward_Nm(dead_band(float(v), ff.dead_band_rad_s), tau_fc_Nm, ff.zeta_s,
+                                             ff.zeta_c, ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+                     for v in np.ravel(dq_rad_s)])

@@ -12,7 +12,8 @@ Control law (per cycle, ``k``)::
     tau_in   = F[ r_in (T_up_in - T_lo_in) ]             F: 1st-order low-pass (load-cell noise)
     T0       = mean of the four tensions                 pretension estimate (§4.4.1)
     tau_g    = m_g_l sin(q_out)                          models.link.gravity_hold_torque_Nm
-    tau_fc   = gain * (eq21(dq_out; c_fc T0) + tau_e)    only when imu_new, held otherwise;
+    tau_fc   = gain * (eq21(db(dq_out); c_fc T0) + tau_e) only when imu_new, held otherwise;
+                                                         db: rest dead band (feedforward.dead_band)
                                                          tau_e: learned effects (controller.learned_effects)
     tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
     e        = tau_in_des - tau_in
@@ -33,7 +34,11 @@ Signal conditioning, and why:
   so the two observer paths stay consistent.
 * ``q_out``: used as sampled (AHRS orientation, ~5e-4 rad noise: 2 mNm of gravity torque).
 * ``dq_out``: the gyro's rate of turn, not a differentiated angle, so no derivative filter;
-  its noise (~2e-3 rad/s) is far below the Stribeck velocity and the tanh width (1/alpha).
+  its noise (~2e-3 rad/s) is far below the Stribeck velocity but not below the tanh width
+  (1/alpha = 0.02 rad/s): at rest tanh(alpha dq) followed the noise and flipped the
+  friction torque's sign at 400 Hz, which the delayed loop amplified into a buzz. The
+  shape therefore sees ``sign(dq) max(|dq| - dead_band, 0)`` (default 3 sigma of the gyro
+  noise): the feedforward is 0 at rest and grows continuously from the band's edge.
   Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
 * pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
   friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
@@ -46,7 +51,7 @@ import math
 import numpy as np
 from numba import njit
 
-from capstan.controller.law.feedforward import friction_feedforward_Nm
+from capstan.controller.law.feedforward import dead_band, friction_feedforward_Nm
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
 from capstan.controller.law.ldo import biquad_init, biquad_step, lowpass_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
@@ -85,7 +90,8 @@ C_DTAU_FAULT_STEP = 36  # dtau_fault * dt
 C_IMU_TIMEOUT = 37
 C_LC_TIMEOUT = 38
 C_MOTOR_TIMEOUT = 39
-N_CFG = 40              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_FF_DEAD_BAND = 40     # rest band of the feedforward's velocity [rad/s]
+N_CFG = 41              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -130,8 +136,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], r.q_out_rad) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        fc = friction_feedforward_Nm(r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C],
-                                     cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
+        fc = friction_feedforward_Nm(dead_band(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]), cfg[C_FF_NM_PER_N] * t0,
+                                     cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
         if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
             load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
             fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
