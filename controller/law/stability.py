@@ -44,9 +44,9 @@ class PointResult:
     slip: bool
     stable: bool
     gain_margin_dB: float
-    gain_crossover_hz: float
+    gain_margin_at_hz: float
     phase_margin_deg: float
-    phase_crossover_hz: float
+    phase_margin_at_hz: float
     sensitivity_peak_dB: float
     sensitivity_peak_hz: float
     resonance_hz: float
@@ -138,7 +138,7 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     dt = cfg.dt_s
     c = controller_tf(cfg)
     g = plant_discrete(p, dt, st.io_delay_cycles)
-    poles = closed_loop_poles(c, g)
+    poles = closed_loop_poles(cfg, p, st.io_delay_cycles)
     stable = bool(np.all(np.abs(poles) < 1.0 - 1e-9))
     f = np.geomspace(0.05, 0.5 / dt * 0.9999, 12000)
     C = freq_response(c, f, dt)
@@ -149,9 +149,8 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     for i in _crossings(mag_db):
         w = mag_db[i] / (mag_db[i] - mag_db[i + 1])
         phase = ph[i] + w * (ph[i + 1] - ph[i])
-        m = (math.degrees(phase) + 180.0) % 360.0
-        m = m - 360.0 if m > 180.0 else m
-        if abs(m) < abs(pm):
+        m = 180.0 - abs((math.degrees(phase) + 180.0) % 360.0 - 180.0)   # angular distance from -180 deg
+        if m < pm:
             pm, f_pm = m, f[i] + w * (f[i + 1] - f[i])
     gm, f_gm = math.inf, math.nan
     s = np.sin(ph)     # -180 deg (mod 360) crossings: imaginary part changes sign with Re < 0
@@ -174,7 +173,7 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     sigma_tau_in = cfg.plant.r_in_m * math.sqrt(2.0) * st.tension_noise_N
     return PointResult(
         p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.slip, stable,
-        float(abs(gm)), float(f_gm), float(pm), float(f_pm),
+        float(gm), float(f_gm), float(pm), float(f_pm),
         float(20.0 * math.log10(abs(S[iS]))), float(f[iS]), float(f[iN]),
         lc_gain * sigma_tau_in, ref_gain * gyro_slope * st.gyro_noise_rad_s)
 

@@ -134,16 +134,22 @@ def controller_mapping(cond: Condition, loop: str, feedforward: bool, placement:
 
 
 class LockStep:
-    """Runs a :class:`Controller` against a :class:`SimulatedRig` in lock-step.
+    """Runs a :class:`Controller` against a :class:`SimulatedRig` at 1 kHz.
 
     Each cycle: sensors -> record -> ``ctl.step()`` -> ``rig.step(tau_m, tau_ext)``.
+    With ``delay_cycles = 0`` the command acts in the cycle it was computed (the lock-step
+    idealisation); with ``delay_cycles = d`` it reaches the plant ``d`` cycles later, as in
+    the daemon's loop (RPDO, SYNC, drive update: ``controller.stability.io_delay_cycles``,
+    checked against a HIL log by ``capstan experiment loop --log``). The IMU delivers at
+    its own rate (400 Hz, held in between) in both.
     """
 
-    def __init__(self, ctl: Controller, rig: SimulatedRig) -> None:
+    def __init__(self, ctl: Controller, rig: SimulatedRig, delay_cycles: int = 0) -> None:
         self.ctl = ctl
         self.rig = rig
         self._imu_t_s = 0.0
         self._cycle = 0
+        self._pending = [0.0] * max(0, int(delay_cycles))
 
     def write_measurements(self, tau_out_ref_Nm: float = 0.0) -> None:
         """Fill the record's measurement fields from the rig's sensors at the rig time."""
@@ -170,13 +176,20 @@ class LockStep:
         """One lock-step cycle; returns the motor command [Nm]."""
         self.write_measurements(tau_out_ref_Nm)
         tau_m = self.ctl.step()
-        self.rig.step(tau_m, tau_ext_Nm, dt_s)
+        applied = tau_m
+        if self._pending:
+            self._pending.append(tau_m)
+            applied = self._pending.pop(0)
+        self.rig.step(applied, tau_ext_Nm, dt_s)
         return tau_m
 
 
 def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
-                    noise: SensorNoise | None = None, settle_s: float = 0.5) -> dict[str, float]:
+                    noise: SensorNoise | None = None, settle_s: float = 0.5,
+                    delay_cycles: int = 0) -> dict[str, float]:
     """Run one controller on one condition; return the metrics.
+
+    :param delay_cycles: command delay of the loop (0: lock-step idealisation).
 
     :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
         ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage)
@@ -186,7 +199,7 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
     rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
                        seed=seed)
     ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
-    ls = LockStep(ctl, rig)
+    ls = LockStep(ctl, rig, delay_cycles)
     n = int(round(duration_s / 1e-3))
     tau_h = np.zeros(n)
     err = np.zeros(n)
