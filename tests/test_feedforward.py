@@ -51,7 +51,8 @@ def test_stribeck_shape_eq21():
 
 
 def _ctl(**ff):
-    m = {"gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+    m = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+         "filters": {"q_out_blend_hz": 0.0},      # the raw angle: these cycles hold q with a rate
          "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0}}, **ff)}
     return Controller(ControllerConfig.from_mapping(m))
 

@@ -4,7 +4,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
 
     controller:
       dt_s: 0.001                    # control period [s]
-      torque_loop: ldo               # ldo (eqs 26-28) | pid (PID on the tau_in error)
+      torque_loop: pid               # ldo (eqs 26-28) | pid (PID on the tau_in error); the defaults are
+                                     # the gains that meet the loop's margins (controller/law/stability.py)
       plant:                         # nominal plant P(s) = K_c / (J_m s^2 + B_m s + K_c), eq (26)
         stiffness_Nm_rad: 240.0      # K_c
         motor_inertia_kg_m2: 0.73    # J_m
@@ -15,13 +16,15 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
       feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
                                      # (the derivative acts on the measured tau_in only)
-        kp: 5.0                      # proportional gain on the tau_in error [Nm/Nm]
-        kd_s: 0.05                   # derivative gain [Nm s/Nm]
+        kp: 0.0                      # proportional gain on the tau_in error [Nm/Nm]
+        kd_s: 0.0                    # derivative gain [Nm s/Nm]
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
-        ki_1_s: 20.0                 # integral gain, PID loop only [Nm/(Nm s)]
+        ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
+        q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
+                                     # integrated gyro rate above this frequency (no lag); 0 = raw angle
       gravity:
         enabled: true
         m_g_l_Nm: 3.78               # tau_g = m_g_l sin(q_out), models.link convention
@@ -38,8 +41,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         eta_s_rad_s: 0.05            # Stribeck velocity
         alpha_s_rad: 50.0            # tanh steepness [s/rad]
         b_vis_Nms_rad: 0.0           # viscous term
-        dead_band_rad_s: 0.006       # |dq_out| below this is rest: the shape sees sign(dq) max(|dq| - band, 0),
-                                     # so the direction cannot follow gyro noise (>= 2 x stability.gyro_noise_rad_s)
+        dead_band_rad_s: 0.01        # |dq_out| below this is rest: the shape sees sign(dq) max(|dq| - band, 0),
+                                     # so the direction cannot follow gyro noise (5 sigma of 2 mrad/s;
+                                     # >= 2 x stability.gyro_noise_rad_s)
         effects: []                  # learned effects added to the friction torque: the fragment
                                      # of `capstan close` (format models/closure/effects_runtime.py,
                                      # evaluation controller/law/learned_effects.py)
@@ -122,10 +126,10 @@ class PlantNominal:
 class FeedbackGains:
     """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
 
-    kp: float = 5.0
-    kd_s: float = 0.05
+    kp: float = 0.0
+    kd_s: float = 0.0
     derivative_cutoff_hz: float = 40.0
-    ki_1_s: float = 20.0
+    ki_1_s: float = 0.15
     integral_limit_Nm: float = 5.0
 
 
@@ -152,7 +156,7 @@ class FeedforwardConfig:
     eta_s_rad_s: float = 0.05
     alpha_s_rad: float = 50.0
     b_vis_Nms_rad: float = 0.0
-    dead_band_rad_s: float = 0.006
+    dead_band_rad_s: float = 0.01
     effects: tuple[dict[str, Any], ...] = ()
     effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
 
@@ -199,7 +203,7 @@ class ControllerConfig:
     """Frozen controller configuration; build with :meth:`from_mapping`."""
 
     dt_s: float = 0.001
-    torque_loop: TorqueLoop = TorqueLoop.LDO
+    torque_loop: TorqueLoop = TorqueLoop.PID
     plant: PlantNominal = field(default_factory=PlantNominal)
     q_cutoff_hz: float = 10.0
     feedback: FeedbackGains = field(default_factory=FeedbackGains)
@@ -209,6 +213,7 @@ class ControllerConfig:
     feedforward: FeedforwardConfig = field(default_factory=FeedforwardConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     stability: StabilitySettings = field(default_factory=StabilitySettings)
+    q_out_blend_hz: float = 2.0
 
     # ------------------------------------------------------------------ parsing
     @staticmethod
@@ -225,7 +230,7 @@ class ControllerConfig:
         d = ControllerConfig()
         dt = get_float(cfg, "dt_s", prefix, d.dt_s, min_value=1e-5, max_value=0.1)
         nyq = 0.5 / dt
-        loop = TorqueLoop[get_choice(cfg, "torque_loop", ("ldo", "pid"), prefix, "ldo").upper()]
+        loop = TorqueLoop[get_choice(cfg, "torque_loop", ("ldo", "pid"), prefix, "pid").upper()]
 
         p = f"{prefix}.plant"
         c = section(cfg, "plant", prefix, required=False)
@@ -257,8 +262,9 @@ class ControllerConfig:
 
         p = f"{prefix}.filters"
         c = section(cfg, "filters", prefix, required=False)
-        reject_unknown(c, {"tau_in_cutoff_hz"}, p)
+        reject_unknown(c, {"tau_in_cutoff_hz", "q_out_blend_hz"}, p)
         tau_fc_hz = get_float(c, "tau_in_cutoff_hz", p, d.tau_in_cutoff_hz, min_value=0.0, max_value=0.45 * nyq)
+        blend_hz = get_float(c, "q_out_blend_hz", p, d.q_out_blend_hz, min_value=0.0, max_value=0.1 * nyq)
 
         p = f"{prefix}.gravity"
         c = section(cfg, "gravity", prefix, required=False)
@@ -274,7 +280,8 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
-        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab)
+        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab,
+                                q_out_blend_hz=blend_hz)
 
     def to_mapping(self) -> dict[str, Any]:
         """The YAML structure of :meth:`from_mapping` with every value explicit, such
@@ -286,7 +293,7 @@ class ControllerConfig:
             "plant": asdict(self.plant),
             "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
             "feedback": asdict(self.feedback),
-            "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz},
+            "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz, "q_out_blend_hz": self.q_out_blend_hz},
             "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
             "feedforward": {
                 "enabled": ff.enabled, "placement": ff.placement.name.lower(), "gain": ff.gain,

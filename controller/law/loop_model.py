@@ -158,9 +158,9 @@ class _Block:
         den = np.zeros(n)
         num[:len(tf[0])] = tf[0]
         den[:len(tf[1])] = tf[1]
-        if n == 1:
+        if n == 1 or not np.any(num):
             self.A, self.B, self.C, self.D = (np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)),
-                                              np.array([[num[0] / den[0]]]))
+                                              np.array([[num[0] / den[0] if n == 1 else 0.0]]))
         else:
             self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
         self.n = self.A.shape[0]

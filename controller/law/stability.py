@@ -9,7 +9,8 @@ slip — this module computes
 * gain margin [dB] (smallest distance of ``|L|`` from 0 dB at a -180 deg crossing, so
   a loop that only tolerates less gain counts as well) and phase margin [deg];
 * the sensitivity peak ``max |1/(1+L)|`` [dB] and its frequency;
-* the closed-loop resonance: the peak of ``|C/(1+L)|`` (load-cell noise -> command);
+* the closed-loop resonance: the peak of ``|C/(1+L)|`` (load-cell noise -> command), and
+  the dominant pole (magnitude, frequency): an unstable loop's limit cycle sits there;
 * white-noise gains to the command's standard deviation: load cells (tension noise of
   each cell -> tau_in = r_in (T_up - T_lo)) and gyro (through the feedforward's slope
   at rest, :func:`feedforward_noise_slope`, held at the IMU rate — approximated as
@@ -52,6 +53,8 @@ class PointResult:
     resonance_hz: float
     loadcell_to_cmd_std_Nm: float
     gyro_to_cmd_std_Nm: float
+    dominant_pole_abs: float = math.nan
+    dominant_pole_hz: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -140,6 +143,8 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     g = plant_discrete(p, dt, st.io_delay_cycles)
     poles = closed_loop_poles(cfg, p, st.io_delay_cycles)
     stable = bool(np.all(np.abs(poles) < 1.0 - 1e-9))
+    i_dom = int(np.argmax(np.abs(poles)))      # the slowest-decaying (or fastest-growing) mode
+    dom_abs, dom_hz = float(abs(poles[i_dom])), float(abs(np.angle(poles[i_dom])) / (2.0 * math.pi * dt))
     f = np.geomspace(0.05, 0.5 / dt * 0.9999, 12000)
     C = freq_response(c, f, dt)
     L = C * freq_response(g, f, dt)
@@ -175,7 +180,7 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
         p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.slip, stable,
         float(gm), float(f_gm), float(pm), float(f_pm),
         float(20.0 * math.log10(abs(S[iS]))), float(f[iS]), float(f[iN]),
-        lc_gain * sigma_tau_in, ref_gain * gyro_slope * st.gyro_noise_rad_s)
+        lc_gain * sigma_tau_in, ref_gain * gyro_slope * st.gyro_noise_rad_s, dom_abs, dom_hz)
 
 
 def plant_points(cfg: ControllerConfig, st: StabilitySettings) -> list[PlantPoint]:

@@ -11,7 +11,10 @@ Control law (per cycle, ``k``)::
 
     tau_in   = F[ r_in (T_up_in - T_lo_in) ]             F: 1st-order low-pass (load-cell noise)
     T0       = mean of the four tensions                 pretension estimate (§4.4.1)
-    tau_g    = m_g_l sin(q_out)                          models.link.gravity_hold_torque_Nm
+    tau_g    = m_g_l sin(q_g)                            models.link.gravity_hold_torque_Nm, q_g: q_out
+                                                         blended with the integrated gyro rate above
+                                                         filters.q_out_blend_hz (AHRS angle noise 5e-4 rad
+                                                         made the command's only high-frequency content at rest)
     tau_fc   = gain * (eq21(db(dq_out); c_fc T0) + tau_e) only when imu_new, held otherwise;
                                                          db: rest dead band (feedforward.dead_band)
                                                          tau_e: learned effects (controller.learned_effects)
@@ -91,7 +94,8 @@ C_IMU_TIMEOUT = 37
 C_LC_TIMEOUT = 38
 C_MOTOR_TIMEOUT = 39
 C_FF_DEAD_BAND = 40     # rest band of the feedforward's velocity [rad/s]
-N_CFG = 41              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_QB_ALPHA = 41         # pole of the complementary filter of q_out (0 = off)
+N_CFG = 42              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -107,7 +111,8 @@ S_RAW_PREV = 11         # previous raw demand [Nm]
 S_FC_HELD = 12          # friction feedforward held between IMU samples [Nm]
 S_FAULT = 13            # latched fault bits (as float64, exact)
 S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
-N_STATE = S_FX + N_FX_STATE
+S_QF = S_FX + N_FX_STATE  # blended joint angle for the gravity model [rad]
+N_STATE = S_QF + 1
 
 
 @njit(cache=True)
@@ -129,11 +134,15 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_TIN_PREV] = tau_in_raw
         st[S_INT] = 0.0
         st[S_RAW_PREV] = math.nan
+        st[S_QF] = r.q_out_rad
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
     # ---- references
-    tau_g = gravity_hold_torque_Nm(cfg[C_MGL], r.q_out_rad) if cfg[C_G_ON] != 0.0 else 0.0
+    qb = cfg[C_QB_ALPHA]        # complementary filter: angle below the blend frequency, gyro above
+    q_g = qb * (st[S_QF] + r.dq_out_rad_s * cfg[C_DT]) + (1.0 - qb) * r.q_out_rad
+    st[S_QF] = q_g
+    tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
         fc = friction_feedforward_Nm(dead_band(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]), cfg[C_FF_NM_PER_N] * t0,

@@ -94,13 +94,25 @@ def build_devices(cfg: DaemonConfig) -> DeviceSet:
 
 
 def build_controller(cfg: DaemonConfig) -> Any:
-    """The Numba controller from the ``controller`` section (compiled, not yet warmed).
+    """The Numba controller from the ``controller`` section (compiled, not yet warmed),
+    after the loop's stability check (:func:`capstan.controller.law.stability.check_margins`).
 
-    :raises ConfigError: on an invalid controller section.
+    :raises ConfigError: on an invalid controller section, or gains that miss the required
+        margins with the I/O delay (unless ``lab_override.margins``).
     """
     from capstan.controller.law.config import ControllerConfig
     from capstan.controller.law.core import Controller
-    return Controller(ControllerConfig.from_mapping(cfg.controller))
+    from capstan.controller.law.stability import check_margins
+    ccfg = ControllerConfig.from_mapping(cfg.controller)
+    rep = check_margins(ccfg, override=cfg.lab_override.margins)
+    if not rep.ok:
+        log.warning("lab override (%s): starting a torque loop outside its margins: %s",
+                    cfg.lab_override.reason, rep.summary())
+    else:
+        log.info("torque loop margins: %s", rep.summary())
+    for line in cfg.overridden:
+        log.warning("lab override (%s): %s", cfg.lab_override.reason, line)
+    return Controller(ccfg)
 
 
 class Daemon:
