@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.runtime import realtime
+from capstan.controller.runtime.command_quality import CommandQuality
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.controller.runtime.session_log import STATS_DTYPE, LogSink, fill_stats, newest_log, open_session
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
@@ -77,6 +78,8 @@ class RunSummary:
     #: wake-to-wake interval that ended at the faulted cycle [s] (0 without a fault); longer
     #: than a sensor timeout, the process itself was not run (host stall), see :data:`STALL_PERIODS`
     fault_gap_s: float = 0.0
+    #: command quality over the running cycles (controller/runtime/command_quality.py)
+    command: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields."""
@@ -207,6 +210,8 @@ class Daemon:
         writer_ok = True
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
+        self._cq = cq = CommandQuality(max(1, round(L.stats_interval_s / L.period_s)), L.period_s,
+                                       _rate_step_Nm(self.cfg, L.period_s))
         ping = note.ping_interval_s
         ping_ns = int(ping * 1e9) if ping else 0
         last_ping = 0
@@ -296,6 +301,10 @@ class Daemon:
                 fault, reason = int(FaultBits.NONFINITE_OUTPUT), "non-finite torque command"
             tau = loop_command(tau, scale, fault)
             r["tau_m_cmd_Nm"] = tau
+            if phase == Phase.RUNNING:
+                cq.add(tau, float(r["tau_in_Nm"]))
+            else:
+                cq.break_sequence()
             # ---- write: RPDO then SYNC
             motor.write_torque(tau)
             motor.send_cycle()
@@ -319,9 +328,13 @@ class Daemon:
                 self._stop = True
             if stats.window_full:
                 rep = stats.take_window()
-                fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped)
+                crep = cq.take_window()
+                fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped, crep)
                 sink.push_stats(stats_buf)
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
+                if crep.cycles:
+                    line += (f", cmd std {crep.cmd_std_Nm:.3f} Nm, change {crep.cmd_change_rms_Nm:.4f} Nm/cycle, "
+                             f">20 Hz {100 * crep.cmd_hf_share:.0f} %, rate hits {crep.rate_limit_hits}")
                 log.info("%s", line)
                 note.status(line)
                 if not writer_ok and sink.writer_alive():
@@ -373,6 +386,10 @@ class Daemon:
         self.summary.overruns = sl.overruns
         self.summary.timing = stats.run_summary()
         self.summary.phase = self.phase.name
+        cq = getattr(self, "_cq", None)
+        if cq is not None:
+            cq.take_window()
+            self.summary.command = cq.run_report().to_dict()
 
     # ------------------------------------------------------------------ shutdown
     def _shutdown(self, dev: DeviceSet) -> None:
@@ -404,6 +421,15 @@ class Daemon:
     def _restore_signals(old: dict[int, Any]) -> None:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def _rate_step_Nm(cfg: DaemonConfig, period_s: float) -> float:
+    """The safety stage's rate clamp per cycle [Nm] (0 if the controller section is unreadable)."""
+    c = cfg.controller.get("safety", {}) if hasattr(cfg.controller, "get") else {}
+    try:
+        return float(c.get("dtau_max_Nm_s", 2000.0)) * period_s if hasattr(c, "get") else 0.0
+    except (TypeError, ValueError):
+        return 0.0
 
 
 def _cpu_snapshot(sink: Any) -> dict[str, float]:
