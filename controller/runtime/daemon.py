@@ -333,7 +333,7 @@ class Daemon:
                 sink.push_stats(stats_buf)
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
                 if crep.cycles:
-                    line += (f", cmd std {crep.cmd_std_Nm:.3f} Nm, change {crep.cmd_change_rms_Nm:.4f} Nm/cycle, "
+                    line += (f", cmd std {crep.cmd_std_Nm * 1e3:.2f} mNm, change {crep.cmd_change_rms_Nm * 1e3:.3f} mNm/cycle, "
                              f">20 Hz {100 * crep.cmd_hf_share:.0f} %, rate hits {crep.rate_limit_hits}")
                 log.info("%s", line)
                 note.status(line)
