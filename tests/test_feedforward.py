@@ -123,18 +123,18 @@ def test_step_uses_the_reduced_model_friction_law():
     ff = ctl.cfg.feedforward
     for k, dq in enumerate((0.003, 0.04, -0.2, 1.5)):
         rec = _cycle(ctl, k, T0=170.0, dq=dq)
-        v = math.copysign(max(abs(dq) - ff.dead_band_rad_s, 0.0), dq)     # the rest band
-        expected = stribeck_friction_Nm.py_func(v, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
-                                                ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+        band = ff.dead_band_rad_s                                          # the rest gate
+        gate = min(max((abs(dq) - 0.8 * band) / (0.2 * band), 0.0), 1.0)
+        expected = gate * stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
+                                                       ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
         assert float(rec["tau_fc_Nm"]) == pytest.approx(expected, rel=1e-12, abs=1e-15)
 
 
 def test_direction_does_not_follow_gyro_noise_at_rest():
     """At rest, 2 mrad/s gyro noise (the HIL plant's and the Xsens' figure) must not flip
-    the friction torque: with the default band (3 sigma) at most a few samples in a
-    thousand leave it, and those by less than a sigma, so the feedforward's std at rest is
-    below 1 % of the friction torque; with the band off (the old tanh(alpha dq)) the
-    direction follows the noise (about half the samples change sign)."""
+    the friction torque: the gate opens at 4 sigma (once in ~16000 samples), so the
+    feedforward's std at rest is below 1 % of the friction torque; with the gate off (the
+    old tanh(alpha dq)) the direction follows the noise (about half the samples flip)."""
     rng = np.random.default_rng(3)
     noise = rng.normal(0.0, 0.002, 4000)
     quiet = _ctl()
@@ -150,16 +150,22 @@ def test_direction_does_not_follow_gyro_noise_at_rest():
     assert np.std(tq) < 0.01 * tau_fc < np.std(tb)
 
 
-def test_rest_band_is_continuous_and_moving_friction_is_kept():
-    """Leaving the band the feedforward starts from 0 (no step); at 0.1 rad/s (slow hand
-    motion) it still gives more than 80 % of the moving friction."""
-    ctl = _ctl()
-    band = ctl.cfg.feedforward.dead_band_rad_s
-    just_out = float(_cycle(ctl, 0, T0=150.0, dq=band + 1e-6)["tau_fc_Nm"])
-    moving = float(_cycle(ctl, 1, T0=150.0, dq=0.1)["tau_fc_Nm"])
-    tau_fc = ctl.friction_torque_per_N * 150.0
-    assert 0.0 < just_out < 1e-3 * tau_fc
-    assert moving > 0.8 * tau_fc
+def test_rest_gate_is_continuous_and_leaves_moving_friction_unchanged():
+    """The gate rises continuously from 0 at 0.8 x band to 1 at the band; from there on the
+    feedforward is eq (21) itself (motion onset is not delayed), e.g. at 0.1 rad/s."""
+    gated = _ctl()
+    plain_cfg = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0},
+                 "stability": {"gyro_noise_rad_s": 0.0}}
+    plain = Controller(ControllerConfig.from_mapping(plain_cfg))
+    band = gated.cfg.feedforward.dead_band_rad_s
+    vals = []
+    for k, v in enumerate((0.8 * band, 0.9 * band, band, 0.1)):
+        g = float(_cycle(gated, k, T0=150.0, dq=v)["tau_fc_Nm"])
+        p = float(_cycle(plain, k, T0=150.0, dq=v)["tau_fc_Nm"])
+        vals.append((g, p))
+    assert vals[0][0] == 0.0
+    assert vals[1][0] == pytest.approx(0.5 * vals[1][1], rel=1e-9)
+    assert vals[2][0] == pytest.approx(vals[2][1], rel=1e-12) and vals[3][0] == pytest.approx(vals[3][1], rel=1e-12)
 
 
 def test_rest_band_below_the_gyro_noise_is_refused():

@@ -41,9 +41,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         eta_s_rad_s: 0.05            # Stribeck velocity
         alpha_s_rad: 50.0            # tanh steepness [s/rad]
         b_vis_Nms_rad: 0.0           # viscous term
-        dead_band_rad_s: 0.01        # |dq_out| below this is rest: the shape sees sign(dq) max(|dq| - band, 0),
-                                     # so the direction cannot follow gyro noise (5 sigma of 2 mrad/s;
-                                     # >= 2 x stability.gyro_noise_rad_s)
+        dead_band_rad_s: 0.01        # rest gate: feedforward x 0 for |dq_out| <= 0.8 band, x 1 above the band
+                                     # (linear between), so its direction cannot follow gyro noise at rest
+                                     # (5 sigma of 2 mrad/s; >= 2 x stability.gyro_noise_rad_s)
         effects: []                  # learned effects added to the friction torque: the fragment
                                      # of `capstan close` (format models/closure/effects_runtime.py,
                                      # evaluation controller/law/learned_effects.py)

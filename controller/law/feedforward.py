@@ -37,13 +37,19 @@ def friction_torque_per_N(ff: FeedforwardConfig, r_out_m: float) -> float:
 
 
 @njit(cache=True)
-def dead_band(dq_rad_s: float, band_rad_s: float) -> float:
-    """``sign(dq) max(|dq| - band, 0)`` [rad/s]: the rest band of the feedforward's velocity."""
-    if dq_rad_s > band_rad_s:
-        return dq_rad_s - band_rad_s
-    if dq_rad_s < -band_rad_s:
-        return dq_rad_s + band_rad_s
-    return 0.0
+def rest_gate(dq_rad_s: float, band_rad_s: float) -> float:
+    """Factor [0, 1] on the feedforward: 0 for ``|dq| <= 0.8 band`` (rest: the rate is gyro
+    noise), 1 from ``|dq| >= band`` on (the shape of eq 21 unchanged, so motion onset gets
+    the full friction as soon as the rate leaves the noise), linear in between."""
+    if band_rad_s <= 0.0:
+        return 1.0
+    a = abs(dq_rad_s)
+    lo = 0.8 * band_rad_s
+    if a <= lo:
+        return 0.0
+    if a >= band_rad_s:
+        return 1.0
+    return (a - lo) / (band_rad_s - lo)
 
 
 @njit(cache=True)
@@ -61,8 +67,9 @@ def friction_curve_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardCon
 
 
 def rest_feedforward_series_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardConfig) -> np.ndarray:
-    """The feedforward as the step evaluates it (rest dead band, then eq 21) on a series of
+    """The feedforward as the step evaluates it (eq 21 times the rest gate) on a series of
     gyro rates [Nm] (no learned effects, gain 1): for noise studies at rest."""
-    return np.array([friction_feedforward_Nm(dead_band(float(v), ff.dead_band_rad_s), tau_fc_Nm, ff.zeta_s,
-                                             ff.zeta_c, ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+    return np.array([rest_gate(float(v), ff.dead_band_rad_s)
+                     * friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c, ff.eta_s_rad_s,
+                                               ff.alpha_s_rad, ff.b_vis_Nms_rad)
                      for v in np.ravel(dq_rad_s)])

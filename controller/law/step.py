@@ -15,8 +15,8 @@ Control law (per cycle, ``k``)::
                                                          blended with the integrated gyro rate above
                                                          filters.q_out_blend_hz (AHRS angle noise 5e-4 rad
                                                          made the command's only high-frequency content at rest)
-    tau_fc   = gain * (eq21(db(dq_out); c_fc T0) + tau_e) only when imu_new, held otherwise;
-                                                         db: rest dead band (feedforward.dead_band)
+    tau_fc   = gain * (g(dq_out) eq21(dq_out; c_fc T0) + tau_e)   only when imu_new, held otherwise;
+                                                         g: rest gate (feedforward.dead_band_rad_s)
                                                          tau_e: learned effects (controller.learned_effects)
     tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
     e        = tau_in_des - tau_in
@@ -40,8 +40,10 @@ Signal conditioning, and why:
   its noise (~2e-3 rad/s) is far below the Stribeck velocity but not below the tanh width
   (1/alpha = 0.02 rad/s): at rest tanh(alpha dq) followed the noise and flipped the
   friction torque's sign at 400 Hz, which the delayed loop amplified into a buzz. The
-  shape therefore sees ``sign(dq) max(|dq| - dead_band, 0)`` (default 3 sigma of the gyro
-  noise): the feedforward is 0 at rest and grows continuously from the band's edge.
+  feedforward is therefore multiplied by a rest gate: 0 below 0.8 x dead_band (default
+  10 mrad/s, 5 sigma of the gyro noise: a sample of noise reaches 4 sigma once in ~16000),
+  1 above the band, linear in between, so eq (21) is unchanged once the joint moves and
+  motion onset gets the full friction as soon as the rate leaves the noise.
   Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
 * pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
   friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
@@ -54,7 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
-from capstan.controller.law.feedforward import dead_band, friction_feedforward_Nm
+from capstan.controller.law.feedforward import friction_feedforward_Nm, rest_gate
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
 from capstan.controller.law.ldo import biquad_init, biquad_step, lowpass_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
@@ -145,8 +147,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        fc = friction_feedforward_Nm(dead_band(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]), cfg[C_FF_NM_PER_N] * t0,
-                                     cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
+        fc = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) * friction_feedforward_Nm(
+            r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S],
+            cfg[C_B_VIS])
         if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
             load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
             fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
