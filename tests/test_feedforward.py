@@ -122,7 +122,8 @@ def test_step_uses_the_reduced_model_friction_law():
     ctl = _ctl()
     ff = ctl.cfg.feedforward
     for k, dq in enumerate((0.003, 0.04, -0.2, 1.5)):
-        rec = _cycle(ctl, k, T0=170.0, dq=dq)
+        _cycle(ctl, 2 * k, T0=170.0, dq=dq)         # the gate opens on the 2nd sample in a row outside
+        rec = _cycle(ctl, 2 * k + 1, T0=170.0, dq=dq)
         band = ff.dead_band_rad_s                                          # the rest gate
         gate = min(max((abs(dq) - 0.8 * band) / (0.2 * band), 0.0), 1.0)
         expected = gate * stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
@@ -160,7 +161,8 @@ def test_rest_gate_is_continuous_and_leaves_moving_friction_unchanged():
     band = gated.cfg.feedforward.dead_band_rad_s
     vals = []
     for k, v in enumerate((0.8 * band, 0.9 * band, band, 0.1)):
-        g = float(_cycle(gated, k, T0=150.0, dq=v)["tau_fc_Nm"])
+        _cycle(gated, 2 * k, T0=150.0, dq=v)
+        g = float(_cycle(gated, 2 * k + 1, T0=150.0, dq=v)["tau_fc_Nm"])
         p = float(_cycle(plain, k, T0=150.0, dq=v)["tau_fc_Nm"])
         vals.append((g, p))
     assert vals[0][0] == 0.0
@@ -172,3 +174,13 @@ def test_rest_band_below_the_gyro_noise_is_refused():
     with pytest.raises(ConfigError, match="dead_band_rad_s"):
         ControllerConfig.from_mapping({"feedforward": {"dead_band_rad_s": 0.001},
                                        "stability": {"gyro_noise_rad_s": 0.002}})
+
+
+def test_one_noise_sample_outside_the_gate_does_not_kick_the_command():
+    """A single IMU sample beyond the gate's edge (a 4-sigma noise sample) gives no
+    feedforward; two in a row (motion) do."""
+    ctl = _ctl()
+    band = ctl.cfg.feedforward.dead_band_rad_s
+    seq = [0.0, 0.0, 1.5 * band, 0.0, 0.0, 1.5 * band, 1.5 * band]
+    fc = [float(_cycle(ctl, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(seq)]
+    assert fc[:6] == [0.0] * 6 and fc[6] > 0.0

@@ -69,7 +69,11 @@ def friction_curve_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardCon
 def rest_feedforward_series_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardConfig) -> np.ndarray:
     """The feedforward as the step evaluates it (eq 21 times the rest gate) on a series of
     gyro rates [Nm] (no learned effects, gain 1): for noise studies at rest."""
-    return np.array([rest_gate(float(v), ff.dead_band_rad_s)
-                     * friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c, ff.eta_s_rad_s,
-                                               ff.alpha_s_rad, ff.b_vis_Nms_rad)
-                     for v in np.ravel(dq_rad_s)])
+    out = np.zeros(np.size(dq_rad_s))
+    prev_out = False
+    for i, v in enumerate(np.ravel(dq_rad_s)):     # one IMU sample each, gate as in the step
+        g = rest_gate(float(v), ff.dead_band_rad_s)
+        out[i] = (g if prev_out else 0.0) * friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c,
+                                                                   ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+        prev_out = g > 0.0
+    return out

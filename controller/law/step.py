@@ -114,7 +114,8 @@ S_FC_HELD = 12          # friction feedforward held between IMU samples [Nm]
 S_FAULT = 13            # latched fault bits (as float64, exact)
 S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
 S_QF = S_FX + N_FX_STATE  # blended joint angle for the gravity model [rad]
-N_STATE = S_QF + 1
+S_FF_OUT = S_QF + 1       # 1.0 if the previous IMU rate was outside the rest gate's lower edge
+N_STATE = S_FF_OUT + 1
 
 
 @njit(cache=True)
@@ -137,6 +138,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_INT] = 0.0
         st[S_RAW_PREV] = math.nan
         st[S_QF] = r.q_out_rad
+        st[S_FF_OUT] = 1.0 if rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) > 0.0 else 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -147,7 +149,14 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        fc = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) * friction_feedforward_Nm(
+        # the gate opens only on the second IMU sample in a row outside its lower edge: one
+        # noise sample beyond 4 sigma (once in ~16000) cannot kick the command, onset waits 2.5 ms
+        gate = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        out = 1.0 if gate > 0.0 else 0.0
+        if st[S_FF_OUT] == 0.0:
+            gate = 0.0
+        st[S_FF_OUT] = out
+        fc = gate * friction_feedforward_Nm(
             r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S],
             cfg[C_B_VIS])
         if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
