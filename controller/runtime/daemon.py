@@ -301,7 +301,7 @@ class Daemon:
                 fault, reason = int(FaultBits.NONFINITE_OUTPUT), "non-finite torque command"
             tau = loop_command(tau, scale, fault)
             r["tau_m_cmd_Nm"] = tau
-            if phase == Phase.RUNNING:
+            if r["phase"] == Phase.RUNNING:        # stepped and unscaled this cycle
                 cq.add(tau, float(r["tau_in_Nm"]))
             else:
                 cq.break_sequence()
