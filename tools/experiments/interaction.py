@@ -96,11 +96,14 @@ CONDITIONS: dict[str, Condition] = {
 
 #: controller name -> (torque loop, feedforward enabled); ``*_shipped`` use the shipped,
 #: delay-robust gains (the config defaults), the others the paper's lock-step gains
-CONTROLLERS: dict[str, tuple[str, bool]] = {
+PAPER_CONTROLLERS: dict[str, tuple[str, bool]] = {
     "pid_gravity_only": ("pid", False),
     "pid_ff": ("pid", True),
     "ldo": ("ldo", False),
     "ldo_ff": ("ldo", True),
+}
+CONTROLLERS: dict[str, tuple[str, bool]] = {
+    **PAPER_CONTROLLERS,
     "shipped_gravity_only": ("shipped", False),
     "shipped_ff": ("shipped", True),
 }
