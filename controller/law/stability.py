@@ -107,10 +107,17 @@ class StabilityReport:
 
     def summary(self) -> str:
         """One line: worst margins against the requirement."""
-        return (f"phase margin {self.worst_phase_margin_deg:.1f} deg (need >= {self.min_phase_margin_deg:g}), "
-                f"gain margin {self.worst_gain_margin_dB:.1f} dB (need >= {self.min_gain_margin_dB:g})"
-                + ("" if self.all_stable else ", closed loop UNSTABLE at some plant points")
-                + f", I/O delay {self.delay_cycles} cycles")
+        text = (f"phase margin {self.worst_phase_margin_deg:.1f} deg (need >= {self.min_phase_margin_deg:g}), "
+                f"gain margin {self.worst_gain_margin_dB:.1f} dB (need >= {self.min_gain_margin_dB:g})")
+        bad = [(i, p) for i, p in enumerate(self.points) if not p.stable]
+        if bad:
+            i, p = max(bad, key=lambda ip: ip[1].dominant_pole_abs)
+            n = max(1, len(self.points) // 3)
+            mode = ("stick", "sheath stick", "slip")[min(i // n, 2)]
+            text += (f", closed loop UNSTABLE at {len(bad)} of {len(self.points)} plant points (worst: {mode}, "
+                     f"K {p.stiffness_Nm_rad:.0f} Nm/rad, J_m {p.motor_inertia_kg_m2:.2f} kg m^2: a mode at "
+                     f"{p.dominant_pole_hz:.1f} Hz growing x{p.dominant_pole_abs:.4f} per cycle)")
+        return text + f", I/O delay {self.delay_cycles} cycles"
 
 
 def feedforward_noise_slope(cfg: ControllerConfig, sigma_rad_s: float, t0_N: float = 150.0,
