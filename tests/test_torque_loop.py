@@ -117,7 +117,7 @@ def test_lockstep_gains_ring_where_the_hil_log_rang():
     46-49 Hz (README "Torque loop")."""
     cfg = ControllerConfig.from_mapping(LOCKSTEP_LDO)
     rep = analyse(cfg)
-    sheath_nominal = rep.points[13]           # sheath stick, middle stiffness and inertia
+    sheath_nominal = rep.points[22]           # sheath stick, middle stiffness and inertia
     assert not sheath_nominal.stable
     assert 40.0 < sheath_nominal.dominant_pole_hz < 55.0
     assert not rep.ok
@@ -129,7 +129,7 @@ def test_shipped_configs_meet_the_margins(name):
     rep = analyse(ControllerConfig.from_mapping(raw))
     assert rep.all_stable
     assert rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0
-    assert len(rep.points) == 27
+    assert len(rep.points) == 36
 
 
 def _daemon_cfg(**controller) -> dict:
@@ -163,3 +163,34 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     with pytest.raises(ConfigError, match="gain margin"):
         check_margins(bad)
     assert check_margins(ControllerConfig.from_mapping({})).ok
+
+
+def _stick_input_stiffness(amp_Nm: float) -> float:
+    """Input stiffness [Nm/rad] of the HIL rig's distributed model (10 nodes) at rest under a
+    2 Hz motor torque sine of ``amp_Nm``: slope of tau_in over the motor angle."""
+    from capstan.models.plant.rig import SensorNoise, SimulatedRig
+    raw = dict(load_yaml(ROOT / "config" / "hil.yaml")["hil"]["plant"])
+    raw.pop("noise", None)
+    raw.pop("seed", None)
+    rig = SimulatedRig.from_mapping(raw)
+    rig.noise = SensorNoise.none()
+    for _ in range(500):
+        rig.step(0.0, 0.0, 1e-3)
+    q0, t0 = rig.model.q_in_rad, rig.model.tau_in_Nm
+    q, t = np.zeros(1000), np.zeros(1000)
+    for k in range(1000):
+        rig.step(amp_Nm * math.sin(2 * math.pi * 2.0 * k * 1e-3), 0.0, 1e-3)
+        q[k], t[k] = rig.model.q_in_rad - q0, rig.model.tau_in_Nm - t0
+    return float(np.polyfit(q, t, 1)[0])
+
+
+def test_sheath_stick_stiffness_is_what_the_distributed_model_shows():
+    """The grid's stick levels against the distributed model (written apart from this
+    analysis): small motions see about (N + 1) K_c, larger ones less, never below K_c;
+    the grid spans K_c .. stick_stiffness_factor x K_c."""
+    kc = 240.0
+    small, large = _stick_input_stiffness(0.05), _stick_input_stiffness(1.0)
+    f = ControllerConfig.from_mapping({}).stability.stick_stiffness_factor
+    assert 0.85 * f * kc < small <= 1.02 * f * kc
+    assert kc < large < small
+

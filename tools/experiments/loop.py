@@ -25,7 +25,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from capstan.controller.law.config import ControllerConfig
-from capstan.controller.law.stability import analyse
+from capstan.controller.law.stability import MODES, analyse
 from capstan.models.common.config_tools import load_yaml
 from capstan.tools.offline.shipped import config_path
 
@@ -76,7 +76,7 @@ def log_check(path: Path) -> dict[str, Any]:
                            "command_change_rms_Nm": float(np.sqrt(np.mean(np.diff(cmd) ** 2))) if len(cmd) > 1 else 0.0,
                            **{f"command_{k}": v for k, v in spectrum_figures(cmd, ccfg.dt_s).items()}}
     rep = analyse(ccfg)
-    sheath = [p for p in rep.points if not p.slip and p.stiffness_Nm_rad > ccfg.stability.stiffness_range_Nm_rad[1]]
+    sheath = rep.points[18:27]          # sheath stick at the full factor (MODES)
     out["predicted_resonance_hz"] = [round(p.dominant_pole_hz if not p.stable else p.resonance_hz, 1)
                                      for p in sheath]
     out["predicted_stable"] = all(p.stable for p in sheath)
@@ -104,12 +104,11 @@ def run(args: argparse.Namespace) -> int:
           f"ki {cfg.feedback.ki_1_s:g} 1/s, I/O delay {st.io_delay_cycles} cycles")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}")
-    print(f"{'mode':<13}{'K_c':>7}{'J_m':>6}{'stable':>7}{'GM dB':>8}{'@Hz':>7}{'PM deg':>8}{'@Hz':>7}"
+    print(f"{'mode':<21}{'K_c':>7}{'J_m':>6}{'stable':>7}{'GM dB':>8}{'@Hz':>7}{'PM deg':>8}{'@Hz':>7}"
           f"{'|S| dB':>8}{'res Hz':>8}{'lc->cmd':>9}{'gyro->cmd':>10}")
-    n = len(rep.points) // 3
     for i, p in enumerate(rep.points):
-        mode = ("stick", "sheath stick", "slip")[min(i // n, 2)] if n else "?"
-        print(f"{mode:<13}{p.stiffness_Nm_rad:>7.0f}{p.motor_inertia_kg_m2:>6.2f}{'yes' if p.stable else 'NO':>7}"
+        mode = MODES[min(i // 9, len(MODES) - 1)]
+        print(f"{mode:<21}{p.stiffness_Nm_rad:>7.0f}{p.motor_inertia_kg_m2:>6.2f}{'yes' if p.stable else 'NO':>7}"
               f"{p.gain_margin_dB:>8.1f}{p.gain_margin_at_hz:>7.1f}{p.phase_margin_deg:>8.1f}{p.phase_margin_at_hz:>7.1f}"
               f"{p.sensitivity_peak_dB:>8.1f}{p.resonance_hz:>8.1f}{p.loadcell_to_cmd_std_Nm:>9.4f}"
               f"{p.gyro_to_cmd_std_Nm:>10.4f}")
