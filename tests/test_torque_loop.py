@@ -194,3 +194,19 @@ def test_sheath_stick_stiffness_is_what_the_distributed_model_shows():
     assert 0.85 * f * kc < small <= 1.02 * f * kc
     assert kc < large < small
 
+
+
+def test_loop_command_prints_strict_json_and_fails_on_missed_margins(capsys, tmp_path):
+    import json
+
+    import yaml
+
+    from capstan.tools.cli import main
+    assert main(["experiment", "loop", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert doc["ok"] and doc["worst_gain_margin_dB"] >= 6.0 and len(doc["points"]) == 36
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"controller": LOCKSTEP_LDO}))
+    assert main(["experiment", "loop", "--config", str(bad), "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert not doc["ok"] and not doc["all_stable"]

@@ -5,7 +5,8 @@ check of the model against a HIL (or rig) log.
 
 Without ``--log``: the margins, sensitivity peak, predicted closed-loop resonance and
 noise gains of :func:`capstan.controller.law.stability.analyse` at every plant point.
-With ``--log``: from the log's cycle records
+``--json`` prints one strict JSON object (a margin without a crossing, e.g. a phase margin
+when ``|L|`` never reaches 1, is ``null``). With ``--log``: from the log's cycle records
 
 * the command -> measured motor torque lag in cycles (cross-correlation of the two),
   which the config's ``io_delay_cycles`` models;
@@ -83,6 +84,17 @@ def log_check(path: Path) -> dict[str, Any]:
     return out
 
 
+def _finite_or_null(x: Any) -> Any:
+    """``x`` with every non-finite float replaced by None (e.g. PM = inf without a crossover)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite_or_null(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite_or_null(v) for v in x]
+    return x
+
+
 def run(args: argparse.Namespace) -> int:
     """Print the analysis (and the log check); exit code 0 if the margins hold, 1 if not.
 
@@ -97,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     if args.log:
         out["log_check"] = log_check(Path(args.log))
     if args.json:
-        print(json.dumps(out))
+        print(json.dumps(_finite_or_null(out), allow_nan=False))   # inf/nan -> null: strict JSON
         return 0 if rep.ok else 1
     st = cfg.stability
     print(f"torque loop of {path}: {cfg.torque_loop.name.lower()}, kp {cfg.feedback.kp:g}, kd {cfg.feedback.kd_s:g} s, "
