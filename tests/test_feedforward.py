@@ -9,6 +9,7 @@ import pytest
 
 from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
+from capstan.models.common.errors import ConfigError
 from capstan.controller.law.feedforward import friction_curve_Nm, friction_torque_per_N
 
 MU = 0.052
@@ -50,7 +51,8 @@ def test_stribeck_shape_eq21():
 
 
 def _ctl(**ff):
-    m = {"gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+    m = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+         "filters": {"q_out_blend_hz": 0.0},      # the raw angle: these cycles hold q with a rate
          "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0}}, **ff)}
     return Controller(ControllerConfig.from_mapping(m))
 
@@ -120,7 +122,65 @@ def test_step_uses_the_reduced_model_friction_law():
     ctl = _ctl()
     ff = ctl.cfg.feedforward
     for k, dq in enumerate((0.003, 0.04, -0.2, 1.5)):
-        rec = _cycle(ctl, k, T0=170.0, dq=dq)
-        expected = stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
-                                                ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+        _cycle(ctl, 2 * k, T0=170.0, dq=dq)         # the gate opens on the 2nd sample in a row outside
+        rec = _cycle(ctl, 2 * k + 1, T0=170.0, dq=dq)
+        band = ff.dead_band_rad_s                                          # the rest gate
+        gate = min(max((abs(dq) - 0.8 * band) / (0.2 * band), 0.0), 1.0)
+        expected = gate * stribeck_friction_Nm.py_func(dq, ctl.friction_torque_per_N * 170.0, ff.zeta_s, ff.zeta_c,
+                                                       ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
         assert float(rec["tau_fc_Nm"]) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+
+
+def test_direction_does_not_follow_gyro_noise_at_rest():
+    """At rest, 2 mrad/s gyro noise (the HIL plant's and the Xsens' figure) must not flip
+    the friction torque: the gate opens at 4 sigma (once in ~16000 samples), so the
+    feedforward's std at rest is below 1 % of the friction torque; with the gate off (the
+    old tanh(alpha dq)) the direction follows the noise (about half the samples flip)."""
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 0.002, 4000)
+    quiet = _ctl()
+    m = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0},
+         "stability": {"gyro_noise_rad_s": 0.0}}    # the old feedforward: only allowed on noise-free rates
+    buzzing = Controller(ControllerConfig.from_mapping(m))
+    tq = np.array([float(_cycle(quiet, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(noise)])
+    tb = np.array([float(_cycle(buzzing, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(noise)])
+    tau_fc = quiet.friction_torque_per_N * 150.0
+    flips = lambda t: int(np.sum(np.sign(t[1:]) * np.sign(t[:-1]) < 0))
+    assert flips(tb) > 1000
+    assert flips(tq) <= 8
+    assert np.std(tq) < 0.01 * tau_fc < np.std(tb)
+
+
+def test_rest_gate_is_continuous_and_leaves_moving_friction_unchanged():
+    """The gate rises continuously from 0 at 0.8 x band to 1 at the band; from there on the
+    feedforward is eq (21) itself (motion onset is not delayed), e.g. at 0.1 rad/s."""
+    gated = _ctl()
+    plain_cfg = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0},
+                 "stability": {"gyro_noise_rad_s": 0.0}}
+    plain = Controller(ControllerConfig.from_mapping(plain_cfg))
+    band = gated.cfg.feedforward.dead_band_rad_s
+    vals = []
+    for k, v in enumerate((0.8 * band, 0.9 * band, band, 0.1)):
+        _cycle(gated, 2 * k, T0=150.0, dq=v)
+        g = float(_cycle(gated, 2 * k + 1, T0=150.0, dq=v)["tau_fc_Nm"])
+        p = float(_cycle(plain, k, T0=150.0, dq=v)["tau_fc_Nm"])
+        vals.append((g, p))
+    assert vals[0][0] == 0.0
+    assert vals[1][0] == pytest.approx(0.5 * vals[1][1], rel=1e-9)
+    assert vals[2][0] == pytest.approx(vals[2][1], rel=1e-12) and vals[3][0] == pytest.approx(vals[3][1], rel=1e-12)
+
+
+def test_rest_band_below_the_gyro_noise_is_refused():
+    with pytest.raises(ConfigError, match="dead_band_rad_s"):
+        ControllerConfig.from_mapping({"feedforward": {"dead_band_rad_s": 0.001},
+                                       "stability": {"gyro_noise_rad_s": 0.002}})
+
+
+def test_one_noise_sample_outside_the_gate_does_not_kick_the_command():
+    """A single IMU sample beyond the gate's edge (a 4-sigma noise sample) gives no
+    feedforward; two in a row (motion) do."""
+    ctl = _ctl()
+    band = ctl.cfg.feedforward.dead_band_rad_s
+    seq = [0.0, 0.0, 1.5 * band, 0.0, 0.0, 1.5 * band, 1.5 * band]
+    fc = [float(_cycle(ctl, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(seq)]
+    assert fc[:6] == [0.0] * 6 and fc[6] > 0.0

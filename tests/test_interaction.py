@@ -69,3 +69,42 @@ def test_cli_parser_has_both_subcommands():
     assert args.experiment == "paper" and str(args.out) == "report_dir" and args.quick
     with pytest.raises(SystemExit):          # the report directory is required
         parser.parse_args(["paper"])
+
+
+class _RecordingRig:
+    """Stands in for the rig: records the torque applied in each step."""
+
+    def __init__(self) -> None:
+        self.applied: list[float] = []
+
+    def step(self, tau_m_Nm: float, tau_ext_Nm: float, dt_s: float) -> None:
+        self.applied.append(tau_m_Nm)
+
+
+class _CountingController:
+    def __init__(self) -> None:
+        self.k = 0
+
+    def step(self) -> float:
+        self.k += 1
+        return float(self.k)
+
+
+@pytest.mark.parametrize("delay", [0, 2])
+def test_the_command_reaches_the_plant_after_the_loops_delay(delay, monkeypatch):
+    from capstan.tools.experiments.interaction import LockStep
+    rig = _RecordingRig()
+    ls = LockStep(_CountingController(), rig, delay_cycles=delay)
+    monkeypatch.setattr(ls, "write_measurements", lambda tau_out_ref_Nm=0.0: None)
+    cmds = [ls.cycle() for _ in range(6)]
+    assert cmds == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    assert rig.applied == [0.0] * delay + cmds[:6 - delay]
+
+
+def test_experiment_says_which_loop_it_ran():
+    from capstan.tools.experiments.interaction import run_experiment
+    out = run_experiment(0.6, placements=("reference",), conditions=("fast_low_bending",), delay_cycles=2)
+    assert out["delay_cycles"] == 2 and "delayed 2 cycles" in out["loop"]
+    assert {"shipped_gravity_only", "shipped_ff", "ldo_ff"} <= set(out["results"]["fast_low_bending"])
+    assert "lock-step" in run_experiment(0.6, placements=("reference",), conditions=("fast_low_bending",),
+                                         delay_cycles=0)["loop"]

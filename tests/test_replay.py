@@ -20,7 +20,7 @@ from capstan.controller.law.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELD
 from capstan.tools.cli import main
 from capstan.tools.offline.replay import merge_config, replay_records
 
-CONFIG = {"controller": {"feedback": {"kp": 4.0, "kd_s": 0.04},
+CONFIG = {"controller": {"torque_loop": "ldo", "feedback": {"kp": 4.0, "kd_s": 0.04},
                          "feedforward": {"gain": 0.8}},
           "rig": {"note": "other sections are kept verbatim"}}
 

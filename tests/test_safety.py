@@ -18,7 +18,8 @@ R_IN = 0.04
 
 
 def _ctl(**extra):
-    m = {"gravity": {"enabled": True, "m_g_l_Nm": 3.78}, "feedforward": {"enabled": False}}
+    m = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+         "feedforward": {"enabled": False}}
     m.update(extra)
     return Controller(ControllerConfig.from_mapping(m))
 
@@ -111,7 +112,8 @@ def test_external_fault_bits_latch():
 
 def test_torque_above_hard_limit_zeroes_command():
     # gravity model of 70 Nm at q = pi/2 demands beyond tau_fault_Nm = 60
-    ctl = _ctl(gravity={"m_g_l_Nm": 70.0}, safety={"dtau_fault_Nm_s": 1e6})
+    # raw angle (no complementary filter): the angle jumps without a rate, as a fault would
+    ctl = _ctl(gravity={"m_g_l_Nm": 70.0}, safety={"dtau_fault_Nm_s": 1e6}, filters={"q_out_blend_hz": 0.0})
     _write(ctl, 0, q_out=0.0)
     ctl.step()
     _write(ctl, 1, q_out=math.pi / 2)

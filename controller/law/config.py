@@ -4,7 +4,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
 
     controller:
       dt_s: 0.001                    # control period [s]
-      torque_loop: ldo               # ldo (eqs 26-28) | pid (PID on the tau_in error)
+      torque_loop: pid               # ldo (eqs 26-28) | pid (PID on the tau_in error); the defaults are
+                                     # the gains that meet the loop's margins (controller/law/stability.py)
       plant:                         # nominal plant P(s) = K_c / (J_m s^2 + B_m s + K_c), eq (26)
         stiffness_Nm_rad: 240.0      # K_c
         motor_inertia_kg_m2: 0.73    # J_m
@@ -15,13 +16,15 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
       feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
                                      # (the derivative acts on the measured tau_in only)
-        kp: 5.0                      # proportional gain on the tau_in error [Nm/Nm]
-        kd_s: 0.05                   # derivative gain [Nm s/Nm]
+        kp: 0.0                      # proportional gain on the tau_in error [Nm/Nm]
+        kd_s: 0.0                    # derivative gain [Nm s/Nm]
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
-        ki_1_s: 20.0                 # integral gain, PID loop only [Nm/(Nm s)]
+        ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
+        q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
+                                     # integrated gyro rate above this frequency (no lag); 0 = raw angle
       gravity:
         enabled: true
         m_g_l_Nm: 3.78               # tau_g = m_g_l sin(q_out), models.link convention
@@ -38,6 +41,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         eta_s_rad_s: 0.05            # Stribeck velocity
         alpha_s_rad: 50.0            # tanh steepness [s/rad]
         b_vis_Nms_rad: 0.0           # viscous term
+        dead_band_rad_s: 0.01        # rest gate: feedforward x 0 for |dq_out| <= 0.8 band, x 1 above the band
+                                     # (linear between), so its direction cannot follow gyro noise at rest
+                                     # (5 sigma of 2 mrad/s; >= 2 x stability.gyro_noise_rad_s)
         effects: []                  # learned effects added to the friction torque: the fragment
                                      # of `capstan close` (format models/closure/effects_runtime.py,
                                      # evaluation controller/law/learned_effects.py)
@@ -54,6 +60,19 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         imu_timeout_s: 0.010         # STALE_IMU when t_s - imu_t_s exceeds this
         loadcell_timeout_s: 0.005
         motor_timeout_s: 0.005
+      stability:                     # the loop check at start-up (controller/law/stability.py)
+        io_delay_cycles: 2           # command -> measured effect beyond the zero-order hold [cycles]
+        stiffness_range_Nm_rad: [200.0, 300.0]   # K_c range the gains must be robust over
+        inertia_tolerance: 0.3       # J_m +- 30 %
+        link_inertia_kg_m2: 0.17     # the link in slip (output free)
+        link_damping_Nms_rad: 0.02
+        link_stiffness_Nm_rad: 3.78  # gravity stiffness m g l at hanging
+        stick_stiffness_factor: 11.0 # input-side stiffness in sheath stick / K_c: only the cable up to
+                                     # where friction grips deforms (N + 1 for the N-node model; 46-49 Hz ring)
+        min_phase_margin_deg: 45.0
+        min_gain_margin_dB: 6.0
+        tension_noise_N: 0.3         # load-cell noise per channel (std) for the noise gains
+        gyro_noise_rad_s: 0.002      # gyro noise (std)
 
 All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
 (with the routing as its curvature profile) so a log stores the exact config used.
@@ -67,6 +86,7 @@ from enum import IntEnum
 from typing import Any, Mapping
 
 from capstan.controller.law.learned_effects import check_entries
+from capstan.controller.law.stability_settings import StabilitySettings, stability_from_mapping
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
 from capstan.models.common.errors import ConfigError
 
@@ -107,10 +127,10 @@ class PlantNominal:
 class FeedbackGains:
     """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
 
-    kp: float = 5.0
-    kd_s: float = 0.05
+    kp: float = 0.0
+    kd_s: float = 0.0
     derivative_cutoff_hz: float = 40.0
-    ki_1_s: float = 20.0
+    ki_1_s: float = 0.15
     integral_limit_Nm: float = 5.0
 
 
@@ -137,6 +157,7 @@ class FeedforwardConfig:
     eta_s_rad_s: float = 0.05
     alpha_s_rad: float = 50.0
     b_vis_Nms_rad: float = 0.0
+    dead_band_rad_s: float = 0.01
     effects: tuple[dict[str, Any], ...] = ()
     effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
 
@@ -166,7 +187,7 @@ class ControllerConfig:
     """Frozen controller configuration; build with :meth:`from_mapping`."""
 
     dt_s: float = 0.001
-    torque_loop: TorqueLoop = TorqueLoop.LDO
+    torque_loop: TorqueLoop = TorqueLoop.PID
     plant: PlantNominal = field(default_factory=PlantNominal)
     q_cutoff_hz: float = 10.0
     feedback: FeedbackGains = field(default_factory=FeedbackGains)
@@ -175,6 +196,8 @@ class ControllerConfig:
     m_g_l_Nm: float = 3.78
     feedforward: FeedforwardConfig = field(default_factory=FeedforwardConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    stability: StabilitySettings = field(default_factory=StabilitySettings)
+    q_out_blend_hz: float = 2.0
 
     # ------------------------------------------------------------------ parsing
     @staticmethod
@@ -187,11 +210,11 @@ class ControllerConfig:
         if not isinstance(cfg, Mapping):
             raise ConfigError(prefix, f"must be a mapping, got {type(cfg).__name__}")
         reject_unknown(cfg, {"dt_s", "torque_loop", "plant", "ldo", "feedback", "filters", "gravity",
-                             "feedforward", "safety"}, prefix)
+                             "feedforward", "safety", "stability"}, prefix)
         d = ControllerConfig()
         dt = get_float(cfg, "dt_s", prefix, d.dt_s, min_value=1e-5, max_value=0.1)
         nyq = 0.5 / dt
-        loop = TorqueLoop[get_choice(cfg, "torque_loop", ("ldo", "pid"), prefix, "ldo").upper()]
+        loop = TorqueLoop[get_choice(cfg, "torque_loop", ("ldo", "pid"), prefix, "pid").upper()]
 
         p = f"{prefix}.plant"
         c = section(cfg, "plant", prefix, required=False)
@@ -223,8 +246,9 @@ class ControllerConfig:
 
         p = f"{prefix}.filters"
         c = section(cfg, "filters", prefix, required=False)
-        reject_unknown(c, {"tau_in_cutoff_hz"}, p)
+        reject_unknown(c, {"tau_in_cutoff_hz", "q_out_blend_hz"}, p)
         tau_fc_hz = get_float(c, "tau_in_cutoff_hz", p, d.tau_in_cutoff_hz, min_value=0.0, max_value=0.45 * nyq)
+        blend_hz = get_float(c, "q_out_blend_hz", p, d.q_out_blend_hz, min_value=0.0, max_value=0.1 * nyq)
 
         p = f"{prefix}.gravity"
         c = section(cfg, "gravity", prefix, required=False)
@@ -234,7 +258,14 @@ class ControllerConfig:
 
         ff = _feedforward_from_mapping(section(cfg, "feedforward", prefix, required=False), f"{prefix}.feedforward")
         safety = _safety_from_mapping(section(cfg, "safety", prefix, required=False), f"{prefix}.safety")
-        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety)
+        stab = stability_from_mapping(section(cfg, "stability", prefix, required=False), f"{prefix}.stability")
+        if ff.enabled and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
+            raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
+                              f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
+                              f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
+                              f"follow noise at rest, got {ff.dead_band_rad_s}")
+        return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab,
+                                q_out_blend_hz=blend_hz)
 
     def to_mapping(self) -> dict[str, Any]:
         """The YAML structure of :meth:`from_mapping` with every value explicit, such
@@ -246,7 +277,7 @@ class ControllerConfig:
             "plant": asdict(self.plant),
             "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
             "feedback": asdict(self.feedback),
-            "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz},
+            "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz, "q_out_blend_hz": self.q_out_blend_hz},
             "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
             "feedforward": {
                 "enabled": ff.enabled, "placement": ff.placement.name.lower(), "gain": ff.gain,
@@ -256,10 +287,13 @@ class ControllerConfig:
                 "pretension": ff.pretension.name.lower(), "T0_fixed_N": ff.T0_fixed_N,
                 "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
                 "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
+                "dead_band_rad_s": ff.dead_band_rad_s,
                 "effects": [dict(e) for e in ff.effects],
                 "effects_shape": dict(zip(_EFFECTS_SHAPE_KEYS, ff.effects_shape)),
             },
             "safety": asdict(self.safety),
+            "stability": {**asdict(self.stability),
+                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad)},
         }
 
 
@@ -276,7 +310,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
 
     reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
                        "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
-                       "effects", "effects_shape"}, p)
+                       "dead_band_rad_s", "effects", "effects_shape"}, p)
     d = FeedforwardConfig()
     if "routing" in c:
         routing = Routing.from_mapping(section(c, "routing", p), f"{p}.routing")
@@ -310,6 +344,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         zeta_s=zeta_s, zeta_c=zeta_c,
         eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
         b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),
+        dead_band_rad_s=get_float(c, "dead_band_rad_s", p, d.dead_band_rad_s, min_value=0.0, max_value=1.0),
         effects=effects, effects_shape=shape,
     )
 
@@ -322,6 +357,12 @@ def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
     reject_unknown(c, {"tau_max_Nm", "dtau_max_Nm_s", "tau_fault_Nm", "dtau_fault_Nm_s", "imu_timeout_s",
                        "loadcell_timeout_s", "motor_timeout_s"}, p)
     d = SafetyConfig()
+    if "tau_max_Nm" in c and "tau_fault_Nm" not in c:
+        # the user set the clamp only: a clamp above the default fault limit is the clamp's error
+        tmax = get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True)
+        if tmax > d.tau_fault_Nm:
+            raise ConfigError(f"{p}.tau_max_Nm", f"must be <= tau_fault_Nm = {d.tau_fault_Nm} "
+                                                f"(the hard fault limit above the clamp), got {tmax}")
     s = SafetyConfig(
         get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True),
         get_float(c, "dtau_max_Nm_s", p, d.dtau_max_Nm_s, min_value=0.0, min_exclusive=True),
@@ -339,3 +380,4 @@ def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
     if not math.isfinite(s.tau_max_Nm):
         raise ConfigError(f"{p}.tau_max_Nm", "must be finite")
     return s
+

@@ -37,6 +37,22 @@ def friction_torque_per_N(ff: FeedforwardConfig, r_out_m: float) -> float:
 
 
 @njit(cache=True)
+def rest_gate(dq_rad_s: float, band_rad_s: float) -> float:
+    """Factor [0, 1] on the feedforward: 0 for ``|dq| <= 0.8 band`` (rest: the rate is gyro
+    noise), 1 from ``|dq| >= band`` on (the shape of eq 21 unchanged, so motion onset gets
+    the full friction as soon as the rate leaves the noise), linear in between."""
+    if band_rad_s <= 0.0:
+        return 1.0
+    a = abs(dq_rad_s)
+    lo = 0.8 * band_rad_s
+    if a <= lo:
+        return 0.0
+    if a >= band_rad_s:
+        return 1.0
+    return (a - lo) / (band_rad_s - lo)
+
+
+@njit(cache=True)
 def friction_feedforward_Nm(dq_out_rad_s: float, tau_fc_Nm: float, zeta_s: float, zeta_c: float,
                             eta_s_rad_s: float, alpha_s_rad: float, b_vis_Nms_rad: float) -> float:
     """Feedforward friction torque [Nm] (eq 21) at the output rate ``dq_out_rad_s``."""
@@ -48,3 +64,16 @@ def friction_curve_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardCon
     """Vectorised eq (21) for plots and tests [Nm]."""
     return np.array([friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c, ff.eta_s_rad_s,
                                              ff.alpha_s_rad, ff.b_vis_Nms_rad) for v in np.ravel(dq_rad_s)])
+
+
+def rest_feedforward_series_Nm(dq_rad_s: np.ndarray, tau_fc_Nm: float, ff: FeedforwardConfig) -> np.ndarray:
+    """The feedforward as the step evaluates it (eq 21 times the rest gate) on a series of
+    gyro rates [Nm] (no learned effects, gain 1): for noise studies at rest."""
+    out = np.zeros(np.size(dq_rad_s))
+    prev_out = False
+    for i, v in enumerate(np.ravel(dq_rad_s)):     # one IMU sample each, gate as in the step
+        g = rest_gate(float(v), ff.dead_band_rad_s)
+        out[i] = (g if prev_out else 0.0) * friction_feedforward_Nm(float(v), tau_fc_Nm, ff.zeta_s, ff.zeta_c,
+                                                                   ff.eta_s_rad_s, ff.alpha_s_rad, ff.b_vis_Nms_rad)
+        prev_out = g > 0.0
+    return out

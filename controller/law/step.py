@@ -11,8 +11,12 @@ Control law (per cycle, ``k``)::
 
     tau_in   = F[ r_in (T_up_in - T_lo_in) ]             F: 1st-order low-pass (load-cell noise)
     T0       = mean of the four tensions                 pretension estimate (§4.4.1)
-    tau_g    = m_g_l sin(q_out)                          models.link.gravity_hold_torque_Nm
-    tau_fc   = gain * (eq21(dq_out; c_fc T0) + tau_e)    only when imu_new, held otherwise;
+    tau_g    = m_g_l sin(q_g)                            models.link.gravity_hold_torque_Nm, q_g: q_out
+                                                         blended with the integrated gyro rate above
+                                                         filters.q_out_blend_hz (AHRS angle noise 5e-4 rad
+                                                         made the command's only high-frequency content at rest)
+    tau_fc   = gain * (g(dq_out) eq21(dq_out; c_fc T0) + tau_e)   only when imu_new, held otherwise;
+                                                         g: rest gate (feedforward.dead_band_rad_s)
                                                          tau_e: learned effects (controller.learned_effects)
     tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
     e        = tau_in_des - tau_in
@@ -33,7 +37,13 @@ Signal conditioning, and why:
   so the two observer paths stay consistent.
 * ``q_out``: used as sampled (AHRS orientation, ~5e-4 rad noise: 2 mNm of gravity torque).
 * ``dq_out``: the gyro's rate of turn, not a differentiated angle, so no derivative filter;
-  its noise (~2e-3 rad/s) is far below the Stribeck velocity and the tanh width (1/alpha).
+  its noise (~2e-3 rad/s) is far below the Stribeck velocity but not below the tanh width
+  (1/alpha = 0.02 rad/s): at rest tanh(alpha dq) followed the noise and flipped the
+  friction torque's sign at 400 Hz, which the delayed loop amplified into a buzz. The
+  feedforward is therefore multiplied by a rest gate: 0 below 0.8 x dead_band (default
+  10 mrad/s, 5 sigma of the gyro noise: a sample of noise reaches 4 sigma once in ~16000),
+  1 above the band, linear in between, so eq (21) is unchanged once the joint moves and
+  motion onset gets the full friction as soon as the rate leaves the noise.
   Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
 * pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
   friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
@@ -46,7 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
-from capstan.controller.law.feedforward import friction_feedforward_Nm
+from capstan.controller.law.feedforward import friction_feedforward_Nm, rest_gate
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
 from capstan.controller.law.ldo import biquad_init, biquad_step, lowpass_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
@@ -85,7 +95,9 @@ C_DTAU_FAULT_STEP = 36  # dtau_fault * dt
 C_IMU_TIMEOUT = 37
 C_LC_TIMEOUT = 38
 C_MOTOR_TIMEOUT = 39
-N_CFG = 40              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_FF_DEAD_BAND = 40     # rest band of the feedforward's velocity [rad/s]
+C_QB_ALPHA = 41         # pole of the complementary filter of q_out (0 = off)
+N_CFG = 42              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -101,7 +113,9 @@ S_RAW_PREV = 11         # previous raw demand [Nm]
 S_FC_HELD = 12          # friction feedforward held between IMU samples [Nm]
 S_FAULT = 13            # latched fault bits (as float64, exact)
 S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
-N_STATE = S_FX + N_FX_STATE
+S_QF = S_FX + N_FX_STATE  # blended joint angle for the gravity model [rad]
+S_FF_OUT = S_QF + 1       # 1.0 if the previous IMU rate was outside the rest gate's lower edge
+N_STATE = S_FF_OUT + 1
 
 
 @njit(cache=True)
@@ -123,15 +137,28 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_TIN_PREV] = tau_in_raw
         st[S_INT] = 0.0
         st[S_RAW_PREV] = math.nan
+        st[S_QF] = r.q_out_rad
+        st[S_FF_OUT] = 1.0 if rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) > 0.0 else 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
     # ---- references
-    tau_g = gravity_hold_torque_Nm(cfg[C_MGL], r.q_out_rad) if cfg[C_G_ON] != 0.0 else 0.0
+    qb = cfg[C_QB_ALPHA]        # complementary filter: angle below the blend frequency, gyro above
+    q_g = qb * (st[S_QF] + r.dq_out_rad_s * cfg[C_DT]) + (1.0 - qb) * r.q_out_rad
+    st[S_QF] = q_g
+    tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        fc = friction_feedforward_Nm(r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C],
-                                     cfg[C_ETA_S], cfg[C_ALPHA_S], cfg[C_B_VIS])
+        # the gate opens only on the second IMU sample in a row outside its lower edge: one
+        # noise sample beyond 4 sigma (once in ~16000) cannot kick the command, onset waits 2.5 ms
+        gate = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        out = 1.0 if gate > 0.0 else 0.0
+        if st[S_FF_OUT] == 0.0:
+            gate = 0.0
+        st[S_FF_OUT] = out
+        fc = gate * friction_feedforward_Nm(
+            r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S],
+            cfg[C_B_VIS])
         if cfg[N_CFG] != 0.0:   # load: the input torque asked for without the effects (no algebraic loop)
             load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
             fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)

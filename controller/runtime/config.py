@@ -12,6 +12,12 @@ Sections::
                   gil_switch_interval_s}
     loop:        {period_s, busy_tail_s, overrun_streak_fault, sensor_fresh_s, ramp_down_s,
                   startup_timeout_s, stats_interval_s, limits: {...}}
+    lab_override: {reason, ranges, margins}   controller/runtime/plausibility.py
+
+Safety-relevant keys must also lie in plausible ranges
+(:data:`capstan.controller.runtime.plausibility.PLAUSIBLE_RANGES`) and the gains must meet
+the loop's stability margins (checked when the daemon builds its controller), unless
+``lab_override`` says otherwise with a reason.
 
 Every invalid value raises :class:`capstan.models.common.errors.ConfigError` naming the dotted key.
 Relative paths (``logging.dir``) are resolved against the config file's directory's
@@ -25,12 +31,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from capstan.controller.runtime.plausibility import LabOverride, check_plausible, lab_override_from_mapping
 from capstan.controller.runtime.realtime import RealtimeMode, RealtimeSettings
 from capstan.models.common.config_tools import (get_bool, get_choice, get_float, get_int, load_yaml,
                                  reject_unknown, section)
 from capstan.models.common.errors import ConfigError
 
-SECTIONS = frozenset({"controller", "motor", "imu", "load_cells", "logging", "realtime", "loop", "hil"})
+SECTIONS = frozenset({"controller", "motor", "imu", "load_cells", "logging", "realtime", "loop", "hil",
+                      "lab_override"})
 
 
 @dataclass(frozen=True)
@@ -116,6 +124,8 @@ class DaemonConfig:
     hil: Mapping[str, Any]
     source: Path | None = None
     raw: Mapping[str, Any] = field(default_factory=dict)
+    lab_override: LabOverride = field(default_factory=LabOverride)
+    overridden: tuple[str, ...] = ()
 
     @staticmethod
     def load(path: str | Path) -> "DaemonConfig":
@@ -134,21 +144,26 @@ class DaemonConfig:
         :raises ConfigError: naming the offending key.
         """
         reject_unknown(cfg, SECTIONS)
+        override = lab_override_from_mapping(section(cfg, "lab_override", required=False))
         devices = {}
         for role in ("motor", "imu", "load_cells"):
             sec = section(cfg, role)
             if not isinstance(sec.get("backend"), str) or not sec.get("backend"):
                 raise ConfigError(f"{role}.backend", "missing; the device backend name (see drivers.registry)")
             devices[role] = sec
+        loop = _loop(section(cfg, "loop", required=False))
+        overridden = tuple(check_plausible(cfg, override))   # after the sections' own checks
         return DaemonConfig(
             controller=section(cfg, "controller"),
             motor=devices["motor"], imu=devices["imu"], load_cells=devices["load_cells"],
             logging=_logging(section(cfg, "logging", required=False), base_dir),
             realtime=_realtime(section(cfg, "realtime", required=False)),
-            loop=_loop(section(cfg, "loop", required=False)),
+            loop=loop,
             hil=section(cfg, "hil", required=False),
             source=source,
             raw=dict(cfg),
+            lab_override=override,
+            overridden=overridden,
         )
 
 

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.runtime import realtime
+from capstan.controller.runtime.command_quality import CommandQuality
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.controller.runtime.link_report import device_links, fill_link_stats, link_status, link_summary
 from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, newest_log, open_session,
@@ -82,6 +83,8 @@ class RunSummary:
     fault_gap_s: float = 0.0
     #: serial link counters per device (good/bad frames, resyncs, bytes skipped, counter gaps)
     links: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: command quality over the running cycles (controller/runtime/command_quality.py)
+    command: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields."""
@@ -99,13 +102,25 @@ def build_devices(cfg: DaemonConfig) -> DeviceSet:
 
 
 def build_controller(cfg: DaemonConfig) -> Any:
-    """The Numba controller from the ``controller`` section (compiled, not yet warmed).
+    """The Numba controller from the ``controller`` section (compiled, not yet warmed),
+    after the loop's stability check (:func:`capstan.controller.law.stability.check_margins`).
 
-    :raises ConfigError: on an invalid controller section.
+    :raises ConfigError: on an invalid controller section, or gains that miss the required
+        margins with the I/O delay (unless ``lab_override.margins``).
     """
     from capstan.controller.law.config import ControllerConfig
     from capstan.controller.law.core import Controller
-    return Controller(ControllerConfig.from_mapping(cfg.controller))
+    from capstan.controller.law.stability import check_margins
+    ccfg = ControllerConfig.from_mapping(cfg.controller)
+    rep = check_margins(ccfg, override=cfg.lab_override.margins)
+    if not rep.ok:
+        log.warning("lab override (%s): starting a torque loop outside its margins: %s",
+                    cfg.lab_override.reason, rep.summary())
+    else:
+        log.info("torque loop margins: %s", rep.summary())
+    for line in cfg.overridden:
+        log.warning("lab override (%s): %s", cfg.lab_override.reason, line)
+    return Controller(ccfg)
 
 
 class Daemon:
@@ -207,6 +222,8 @@ class Daemon:
         writer_lost = False
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
+        self._cq = cq = CommandQuality(max(1, round(L.stats_interval_s / L.period_s)), L.period_s,
+                                       _rate_step_Nm(self.cfg, L.period_s))
         ping = note.ping_interval_s
         ping_ns = int(ping * 1e9) if ping else 0
         last_ping = 0
@@ -303,6 +320,10 @@ class Daemon:
                 fault, reason = int(FaultBits.NONFINITE_OUTPUT), "non-finite torque command"
             tau = loop_command(tau, scale, fault)
             r["tau_m_cmd_Nm"] = tau
+            if r["phase"] == Phase.RUNNING:        # stepped and unscaled this cycle
+                cq.add(tau, float(r["tau_in_Nm"]))
+            else:
+                cq.break_sequence()
             # ---- write: RPDO then SYNC
             motor.write_torque(tau)
             motor.send_cycle()
@@ -326,11 +347,15 @@ class Daemon:
                 self._stop = True
             if stats.window_full:
                 rep = stats.take_window()
-                fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped)
+                crep = cq.take_window()
+                fill_stats(stats_buf, t_s, rep, sl.missed, sink.dropped, crep)
                 stats_buf["drive_limit_total"] = getattr(motor, "internal_limit_cycles", 0)
                 fill_link_stats(stats_buf, links)
                 sink.push_stats(stats_buf)
                 line = f"{Phase(phase).name.lower()}: " + rep.status_line()
+                if crep.cycles:
+                    line += (f", cmd std {crep.cmd_std_Nm * 1e3:.2f} mNm, change {crep.cmd_change_rms_Nm * 1e3:.3f} mNm/cycle, "
+                             f">20 Hz {100 * crep.cmd_hf_share:.0f} %, rate hits {crep.rate_limit_hits}")
                 if links:
                     line += "; links " + link_status(links)
                 log.info("%s", line)
@@ -398,6 +423,10 @@ class Daemon:
         self.summary.overruns = sl.overruns
         self.summary.timing = stats.run_summary()
         self.summary.phase = self.phase.name
+        cq = getattr(self, "_cq", None)
+        if cq is not None:
+            cq.take_window()
+            self.summary.command = cq.run_report().to_dict()
 
     # ------------------------------------------------------------------ shutdown
     def _shutdown(self, dev: DeviceSet) -> None:
@@ -435,6 +464,15 @@ def _writer_lost(sink: Any) -> bool:
     """Supervise the log writer (restarts it by policy); True if it is lost for good."""
     supervise = getattr(sink, "supervise", None)
     return callable(supervise) and int(supervise()) == 2      # WriterHealth.LOST
+
+
+def _rate_step_Nm(cfg: DaemonConfig, period_s: float) -> float:
+    """The safety stage's rate clamp per cycle [Nm] (0 if the controller section is unreadable)."""
+    c = cfg.controller.get("safety", {}) if hasattr(cfg.controller, "get") else {}
+    try:
+        return float(c.get("dtau_max_Nm_s", 2000.0)) * period_s if hasattr(c, "get") else 0.0
+    except (TypeError, ValueError):
+        return 0.0
 
 
 def _cpu_snapshot(sink: Any) -> dict[str, float]:

@@ -27,6 +27,9 @@ STATS_DTYPE = np.dtype([
     ("compute_max_us", "f8"), ("success_rate", "f8"), ("gil_wait_max_us", "f8"),
     # TPDOs with statusword bit 11 (the drive limited the torque itself), since start
     ("drive_limit_total", "u8"),
+    # command quality of the window (controller/runtime/command_quality.py): Nm, Nm per cycle, -, count, Nm
+    ("cmd_std_Nm", "f8"), ("cmd_change_rms_Nm", "f8"), ("cmd_hf_share", "f8"), ("rate_limit_hits", "u4"),
+    ("tau_in_std_Nm", "f8"),
 ] + LINK_STATS_FIELDS)
 
 
@@ -171,9 +174,15 @@ def newest_log(out_dir: Path, prefix: str = "capstan", since_s: float = 0.0) -> 
     return max(files, key=lambda p: p.stat().st_mtime) if files else None
 
 
-def fill_stats(buf: np.ndarray, t_s: float, rep: WindowReport, missed_total: int, dropped_total: int) -> None:
-    """Write one window report into the (1,) stats buffer."""
+def fill_stats(buf: np.ndarray, t_s: float, rep: WindowReport, missed_total: int, dropped_total: int,
+               cmd: Any = None) -> None:
+    """Write one window report (and the window's :class:`CommandReport` ``cmd``) into the
+    (1,) stats buffer."""
     b = buf[0]
+    if cmd is not None:
+        b["cmd_std_Nm"], b["cmd_change_rms_Nm"] = cmd.cmd_std_Nm, cmd.cmd_change_rms_Nm
+        b["cmd_hf_share"], b["rate_limit_hits"] = cmd.cmd_hf_share, cmd.rate_limit_hits
+        b["tau_in_std_Nm"] = cmd.tau_in_std_Nm
     b["t_s"], b["cycles"], b["late"] = t_s, rep.cycles, rep.late
     b["missed_total"], b["dropped_total"] = missed_total, dropped_total
     b["jitter_p50_us"], b["jitter_p99_us"] = rep.jitter_p50_us, rep.jitter_p99_us

@@ -1,7 +1,8 @@
 """``capstan experiment``: the interaction experiment (paper §4.5, Fig. 13) on the simulated
 rig, and ``paper`` (reproduce the paper's figures; implemented in :mod:`capstan.tools.experiments.paper.experiment`).
 
-    capstan experiment interaction [--json] [--quick] [--duration-s S] [--seed N]
+    capstan experiment interaction [--json] [--quick] [--duration-s S] [--seed N] [--delay-cycles D | --lock-step]
+    capstan experiment loop [--config FILE] [--log HIL.mcap] [--json]   # margins with the I/O delay
     capstan experiment paper [...]            # options of tools.paper_experiment
 """
 
@@ -30,6 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="one motion cycle per condition (~10 s wall time)")
     p.add_argument("--duration-s", type=float, default=None, help="simulated time per run [s] (default 24, quick 6.5)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
+    p.add_argument("--delay-cycles", type=int, default=None,
+                   help="command delay of the loop [cycles] (default: controller.stability.io_delay_cycles, 2)")
+    p.add_argument("--lock-step", action="store_true", help="the lock-step idealisation (no delay)")
+    lp = sub.add_parser("loop", help="torque-loop margins and noise gains with the I/O delay")
+    from capstan.tools.experiments.loop import add_arguments as _loop_args
+    _loop_args(lp)
     q = sub.add_parser("paper", help="reproduce the paper's figures (tools.paper_experiment)")
     # the paper experiment declares its own options; imported only when this command runs
     if importlib.util.find_spec("capstan.tools.experiments.paper.experiment") is not None:
@@ -44,10 +51,20 @@ def run(args: argparse.Namespace) -> int:
     """Run the chosen experiment; returns the exit code."""
     if args.experiment == "paper":
         return _run_paper(args)
+    if args.experiment == "loop":
+        from capstan.tools.experiments.loop import run as run_loop
+        return run_loop(args)
     from capstan.tools.experiments.interaction import run_experiment
 
     duration = args.duration_s if args.duration_s is not None else (6.5 if args.quick else 24.0)
-    out = run_experiment(duration, seed=args.seed,
+    if args.lock_step:
+        delay = 0
+    elif args.delay_cycles is not None:
+        delay = args.delay_cycles
+    else:
+        from capstan.controller.law.config import StabilitySettings
+        delay = StabilitySettings().io_delay_cycles
+    out = run_experiment(duration, seed=args.seed, delay_cycles=delay,
                          progress=None if args.json else (lambda m: log.info("%s", m)))
     out["duration_s"] = duration
     out["ratios"] = _ratios(out["results"])
@@ -65,13 +82,14 @@ def _ratios(results: dict) -> dict:
     ratios = {}
     for cond, res in results.items():
         base = res["pid_gravity_only"]["mean_abs_tau_h_Nm"]
-        ratios[cond] = {k: (base / v["mean_abs_tau_h_Nm"] if v["mean_abs_tau_h_Nm"] > 0 else float("inf"))
+        ratios[cond] = {k: (base / v["mean_abs_tau_h_Nm"] if v["mean_abs_tau_h_Nm"] > 0 else float("nan"))
                         for k, v in res.items()}
     return ratios
 
 
 def _print_table(out: dict) -> None:
-    print(f"interaction experiment, {out['duration_s']:.1f} s simulated per run, mean |tau_h| [Nm]")
+    print(f"interaction experiment, {out['duration_s']:.1f} s simulated per run, mean |tau_h| [Nm]; "
+          f"loop: {out['loop']}")
     for cond, res in out["results"].items():
         c = out["conditions"][cond]
         h = c["human"]
@@ -80,6 +98,9 @@ def _print_table(out: dict) -> None:
               f"stroke {2 * h['amplitude_rad']:.2f} rad in {h['move_s']} s, rests {h['rest_s']} s")
         print(f"  {'controller':<26}{'mean|tau_h|':>12}{'ratio':>8}{'rms e_tau_in':>14}{'max|raw|':>10}  fault")
         for key, m in res.items():
+            if "error" in m:
+                print(f"  {key:<26}{'-':>12}  stopped: {m['error']}")
+                continue
             print(f"  {key:<26}{m['mean_abs_tau_h_Nm']:>12.3f}{out['ratios'][cond][key]:>8.2f}"
                   f"{m['rms_tau_in_err_Nm']:>14.3f}{m['max_abs_tau_m_raw_Nm']:>10.2f}  {'YES' if m['faulted'] else 'no'}")
     print(f"\npaper Fig. 13(d): {PAPER_FIG13_NM['uncompensated']} Nm uncompensated vs "

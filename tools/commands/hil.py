@@ -149,6 +149,11 @@ def run(args: argparse.Namespace) -> int:
               f"{summary['jitter_p50_us']:.0f}/{summary['jitter_p99_us']:.0f}/{summary['jitter_p999_us']:.0f}/"
               f"{summary['jitter_max_us']:.0f} us, faults {summary['faults']}, "
               f"dropped log records {summary['dropped_log_records']}, log {summary['log_path']}")
+        c = summary["command"]
+        if c:
+            print(f"command: std {c['cmd_std_Nm']:.4f} Nm, change {c['cmd_change_rms_Nm']:.4f} Nm/cycle rms, "
+                  f"{100 * c['cmd_hf_share']:.1f} % of its power above 20 Hz, {c['rate_limit_hits']} rate-limit hits; "
+                  f"tau_in std {c['tau_in_std_Nm']:.4f} Nm")
     return code
 
 
@@ -172,6 +177,7 @@ def summarize(daemon: Daemon | None, plant: Mapping[str, Any], wall_s: float) ->
         "faults": list(s.faults) if s else [],
         "fault_gap_s": s.fault_gap_s if s else 0.0,
         "dropped_log_records": s.dropped_log_records if s else 0,
+        "command": dict(s.command) if s else {},
         "log_path": s.log_path if s else None,
         "cpu_s": dict(s.cpu_s) if s else {},
         "loop_wall_s": s.loop_wall_s if s else 0.0,

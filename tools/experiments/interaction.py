@@ -29,6 +29,7 @@ import numpy as np
 from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
 from capstan.models.plant.config import plant_from_mapping
+from capstan.models.common.errors import OperatingRangeError
 from capstan.models.plant.rig import SensorNoise, SimulatedRig
 
 
@@ -93,13 +94,23 @@ CONDITIONS: dict[str, Condition] = {
                                   HumanModel(center_rad=0.4, amplitude_rad=0.4, move_s=1.0, rest_s=0.3)),
 }
 
-#: controller name -> (torque loop, feedforward enabled)
-CONTROLLERS: dict[str, tuple[str, bool]] = {
+#: controller name -> (torque loop, feedforward enabled); ``*_shipped`` use the shipped,
+#: delay-robust gains (the config defaults), the others the paper's lock-step gains
+PAPER_CONTROLLERS: dict[str, tuple[str, bool]] = {
     "pid_gravity_only": ("pid", False),
     "pid_ff": ("pid", True),
     "ldo": ("ldo", False),
     "ldo_ff": ("ldo", True),
 }
+CONTROLLERS: dict[str, tuple[str, bool]] = {
+    **PAPER_CONTROLLERS,
+    "shipped_gravity_only": ("shipped", False),
+    "shipped_ff": ("shipped", True),
+}
+
+#: the gains the paper-style controllers were tuned with in lock-step (no delay); with the
+#: daemon's 2-cycle I/O delay they miss the margins (`capstan experiment loop`)
+LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}
 
 
 def plant_mapping(cond: Condition) -> dict[str, Any]:
@@ -120,11 +131,13 @@ def controller_mapping(cond: Condition, loop: str, feedforward: bool, placement:
     from capstan.models.transmission.link import LinkParams
 
     m: dict[str, Any] = {
-        "torque_loop": loop,
         "gravity": {"enabled": True, "m_g_l_Nm": LinkParams.bar_with_tip_mass().m_g_l_Nm},
         "feedforward": {"enabled": feedforward, "placement": placement,
                         "routing": {"length_m": 1.379, "theta_rad": cond.theta_rad}},
     }
+    if loop != "shipped":           # shipped: the config defaults (torque loop and gains)
+        m["torque_loop"] = loop
+        m["feedback"] = dict(LOCKSTEP_GAINS)
     for k, v in (extra or {}).items():
         if isinstance(v, dict) and isinstance(m.get(k), dict):
             m[k] = {**m[k], **v}
@@ -134,16 +147,22 @@ def controller_mapping(cond: Condition, loop: str, feedforward: bool, placement:
 
 
 class LockStep:
-    """Runs a :class:`Controller` against a :class:`SimulatedRig` in lock-step.
+    """Runs a :class:`Controller` against a :class:`SimulatedRig` at 1 kHz.
 
     Each cycle: sensors -> record -> ``ctl.step()`` -> ``rig.step(tau_m, tau_ext)``.
+    With ``delay_cycles = 0`` the command acts in the cycle it was computed (the lock-step
+    idealisation); with ``delay_cycles = d`` it reaches the plant ``d`` cycles later, as in
+    the daemon's loop (RPDO, SYNC, drive update: ``controller.stability.io_delay_cycles``,
+    checked against a HIL log by ``capstan experiment loop --log``). The IMU delivers at
+    its own rate (400 Hz, held in between) in both.
     """
 
-    def __init__(self, ctl: Controller, rig: SimulatedRig) -> None:
+    def __init__(self, ctl: Controller, rig: SimulatedRig, delay_cycles: int = 0) -> None:
         self.ctl = ctl
         self.rig = rig
         self._imu_t_s = 0.0
         self._cycle = 0
+        self._pending = [0.0] * max(0, int(delay_cycles))
 
     def write_measurements(self, tau_out_ref_Nm: float = 0.0) -> None:
         """Fill the record's measurement fields from the rig's sensors at the rig time."""
@@ -170,13 +189,20 @@ class LockStep:
         """One lock-step cycle; returns the motor command [Nm]."""
         self.write_measurements(tau_out_ref_Nm)
         tau_m = self.ctl.step()
-        self.rig.step(tau_m, tau_ext_Nm, dt_s)
+        applied = tau_m
+        if self._pending:
+            self._pending.append(tau_m)
+            applied = self._pending.pop(0)
+        self.rig.step(applied, tau_ext_Nm, dt_s)
         return tau_m
 
 
 def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
-                    noise: SensorNoise | None = None, settle_s: float = 0.5) -> dict[str, float]:
+                    noise: SensorNoise | None = None, settle_s: float = 0.5,
+                    delay_cycles: int = 0) -> dict[str, float]:
     """Run one controller on one condition; return the metrics.
+
+    :param delay_cycles: command delay of the loop (0: lock-step idealisation).
 
     :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
         ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage)
@@ -186,7 +212,7 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
     rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
                        seed=seed)
     ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
-    ls = LockStep(ctl, rig)
+    ls = LockStep(ctl, rig, delay_cycles)
     n = int(round(duration_s / 1e-3))
     tau_h = np.zeros(n)
     err = np.zeros(n)
@@ -215,21 +241,28 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
 
 def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference", "motor"),
                    conditions: tuple[str, ...] = tuple(CONDITIONS), seed: int = 0,
-                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, delay_cycles: int = 0) -> dict[str, Any]:
     """All controllers x conditions (and both feedforward placements for the ``*_ff`` ones).
 
+    :param delay_cycles: the loop's command delay (0: the lock-step idealisation).
     :returns: ``{condition: {controller[@placement]: metrics}}`` plus the condition descriptions.
     """
-    out: dict[str, Any] = {"conditions": {}, "results": {}}
+    out: dict[str, Any] = {"conditions": {}, "results": {}, "delay_cycles": int(delay_cycles),
+                           "loop": "lock-step idealisation (no delay)" if delay_cycles == 0 else
+                           f"command delayed {int(delay_cycles)} cycles as in the daemon; IMU at 400 Hz"}
     for cname in conditions:
         cond = CONDITIONS[cname]
         out["conditions"][cname] = {"theta_rad": cond.theta_rad, "pretension_N": cond.pretension_N,
                                     "human": cond.human.__dict__}
         res: dict[str, Any] = {}
         for name, (loop, ff) in CONTROLLERS.items():
-            for placement in (placements if ff else ("reference",)):
+            for placement in (placements if ff and loop != "shipped" else ("reference",)):
                 key = name if not ff or placement == "reference" else f"{name}@{placement}"
-                res[key] = run_interaction(cond, controller_mapping(cond, loop, ff, placement), duration_s, seed)
+                try:
+                    res[key] = run_interaction(cond, controller_mapping(cond, loop, ff, placement), duration_s,
+                                               seed, delay_cycles=delay_cycles)
+                except OperatingRangeError as exc:      # e.g. cable slack: a result, not a crash
+                    res[key] = {"mean_abs_tau_h_Nm": math.nan, "error": str(exc), "faulted": 1.0}
                 if progress is not None:
                     progress(f"{cname} {key}: mean |tau_h| = {res[key]['mean_abs_tau_h_Nm']:.3f} Nm")
         out["results"][cname] = res

@@ -22,7 +22,8 @@ from capstan.controller.law.config import ControllerConfig  # noqa: E402
 from capstan.controller.law.core import Controller  # noqa: E402
 from capstan.models.plant.config import plant_from_mapping  # noqa: E402
 from capstan.models.plant.rig import SensorNoise, SimulatedRig  # noqa: E402
-from capstan.tools.experiments.interaction import CONDITIONS, CONTROLLERS, LockStep, controller_mapping, plant_mapping  # noqa: E402
+from capstan.tools.experiments.interaction import CONDITIONS, LockStep, controller_mapping, plant_mapping  # noqa: E402
+from capstan.tools.experiments.interaction import PAPER_CONTROLLERS as CONTROLLERS  # noqa: E402  (the paper's four)
 from capstan.tools.experiments.paper.common import Settings, row, save  # noqa: E402
 
 #: paper Fig. 13(d), left to right: uncompensated, then (slow: PID+ff, LDO+ff), (fast: PID+ff, LDO+ff) [Nm]

@@ -1,0 +1,248 @@
+"""The discrete-time torque loop exactly as the 1 kHz step runs it, as transfer functions.
+
+Everything is a polynomial ratio in ``z^-1`` (``(num, den)`` numpy arrays, ascending
+powers of ``z^-1``), built from the *same* coefficient functions the step uses
+(:mod:`capstan.controller.law.ldo`), so the analysis cannot drift from the code.
+
+Loop, per cycle ``k`` (``F``: tau_in low-pass, ``Dd``: filtered derivative on the
+measurement, ``Q``/``QP``: the observer filters, ``u``: the command)::
+
+    u (1 - Q F z^-1) = (1 + kp) ref - F (kp + Dd + QP) tau_in          LDO
+    u                = (1 + kp) ref - F (kp + Dd + ki T / (1 - z^-1)) tau_in     PID
+
+so the feedback controller from the measured ``tau_in`` to ``u`` is
+``C = F (kp + Dd + QP) / (1 - Q F z^-1)`` (LDO) and the loop gain is
+``L = C z^-d Pd``: ``Pd`` the plant from applied motor torque to ``tau_in`` discretised
+with a zero-order hold (scipy ``cont2discrete``), ``d`` the extra I/O delay in cycles
+(CANopen RPDO/SYNC/drive update and sensor transport beyond the hold).
+
+Plant, linearised (SI, torques at the motor side, ``r_in = r_out``):
+
+* ``stick`` — the transmission friction holds the output: ``P = K/(J s^2 + B s + K)``;
+* ``slip``  — friction constant (no incremental effect), the link free:
+  ``P = K M_l / (M_m M_l + K (M_m + M_l))`` with ``M_m = J_m s^2 + B_m s`` and
+  ``M_l = J_l s^2 + b_l s + k_g`` (link inertia, damping, gravity stiffness).
+
+Margins and peaks are read off the frequency response on a dense grid with the
+crossings refined by interpolation; closed-loop stability from the roots of
+``den_C den_P + num_C num_P z^-d`` (all inside the unit circle).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from capstan.controller.law.config import ControllerConfig, TorqueLoop
+from capstan.controller.law.ldo import (derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients,
+                                        qpinv_filter_coefficients)
+
+TF = tuple[np.ndarray, np.ndarray]
+
+
+def _mul(a: TF, b: TF) -> TF:
+    # np.convolve, not np.polymul: polymul strips leading zeros, i.e. the delays z^-k
+
+    return np.convolve(a[0], b[0]), np.convolve(a[1], b[1])
+
+
+def _padd(a: np.ndarray, b: np.ndarray, sign: float = 1.0) -> np.ndarray:
+    """``a + sign b`` for ascending-power coefficient arrays (padded at the end)."""
+    n = max(len(a), len(b))
+    out = np.zeros(n)
+    out[:len(a)] += a
+    out[:len(b)] += sign * np.asarray(b)
+    return out
+
+
+def _add(a: TF, b: TF) -> TF:
+    return _padd(np.convolve(a[0], b[1]), np.convolve(b[0], a[1])), np.convolve(a[1], b[1])
+
+
+def tau_in_filter(cfg: ControllerConfig) -> TF:
+    """``F(z)`` of the tau_in low-pass ``y = a y + (1 - a) x`` (1 when off)."""
+    a = lowpass_alpha(cfg.tau_in_cutoff_hz, cfg.dt_s)
+    return np.array([1.0 - a]), np.array([1.0, -a])
+
+
+def derivative_filter(cfg: ControllerConfig) -> TF:
+    """``Dd(z) = b0 (1 - z^-1) / (1 + a1 z^-1)`` of the filtered derivative (on tau_in)."""
+    fb = cfg.feedback
+    b0, a1 = derivative_filter_coefficients(fb.kd_s, fb.derivative_cutoff_hz, cfg.dt_s)
+    return np.array([b0, -b0]), np.array([1.0, a1])
+
+
+def controller_tf(cfg: ControllerConfig) -> TF:
+    """Feedback path ``C(z)``: measured tau_in -> command u (sign: ``u = -C tau_in + ...``)."""
+    F = tau_in_filter(cfg)
+    fb = cfg.feedback
+    inner = _add((np.array([fb.kp]), np.array([1.0])), derivative_filter(cfg))
+    if cfg.torque_loop == TorqueLoop.LDO:
+        bp, ap = qpinv_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s, cfg.plant.stiffness_Nm_rad,
+                                           cfg.plant.motor_inertia_kg_m2, cfg.plant.motor_damping_Nms_rad)
+        inner = _add(inner, (bp, ap))
+        bq, aq = q_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s)
+        qf = _mul((bq, aq), F)
+        # 1 - Q F z^-1 = (den - z^-1 num) / den
+        one_minus = (_padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0), qf[1])
+        c = _mul(F, inner)
+        return _mul(c, (one_minus[1], one_minus[0]))
+    integ = (np.array([fb.ki_1_s * cfg.dt_s]), np.array([1.0, -1.0]))
+    return _mul(F, _add(inner, integ) if fb.ki_1_s > 0 else inner)
+
+
+def reference_tf(cfg: ControllerConfig) -> TF:
+    """Open path ``R(z)`` from the torque reference to u: ``(1 + kp) / (1 - Q F z^-1)`` (LDO)."""
+    g = 1.0 + cfg.feedback.kp
+    if cfg.torque_loop != TorqueLoop.LDO:
+        return np.array([g]), np.array([1.0])
+    bq, aq = q_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s)
+    qf = _mul((bq, aq), tau_in_filter(cfg))
+    return g * qf[1], _padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0)
+
+
+@dataclass(frozen=True)
+class PlantPoint:
+    """One linearisation of the plant (SI): motor side and, for slip, the link.
+
+    :ivar stiffness_Nm_rad: transmission stiffness K_c [Nm/rad].
+    :ivar motor_inertia_kg_m2: J_m [kg m^2]; ``motor_damping_Nms_rad``: B_m [Nm s/rad].
+    :ivar slip: False = stick (output held by friction), True = slip (link free).
+    :ivar link_inertia_kg_m2, link_damping_Nms_rad, link_stiffness_Nm_rad: the link in slip.
+    """
+
+    stiffness_Nm_rad: float
+    motor_inertia_kg_m2: float
+    motor_damping_Nms_rad: float
+    slip: bool = False
+    link_inertia_kg_m2: float = 0.17
+    link_damping_Nms_rad: float = 0.02
+    link_stiffness_Nm_rad: float = 3.78
+
+
+def plant_continuous(p: PlantPoint) -> TF:
+    """``P(s)`` (descending powers of s): applied motor torque -> tau_in."""
+    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
+    if not p.slip:
+        return np.array([K]), np.polyadd(mm, [K])
+    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
+    return K * ml, np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
+
+
+def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int) -> TF:
+    """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)."""
+    num, den, _ = signal.cont2discrete(plant_continuous(p), dt_s, method="zoh")
+    num = np.trim_zeros(np.atleast_2d(num)[0], "f") if np.any(num) else np.zeros(1)
+    den = np.atleast_1d(den)
+    # descending powers of z -> ascending z^-1 with the relative degree as leading zeros
+    rel = len(den) - len(num)
+    num = np.concatenate((np.zeros(rel + delay_cycles), num))
+    return num, den
+
+
+def freq_response(tf: TF, f_hz: np.ndarray, dt_s: float) -> np.ndarray:
+    """Complex response of an ascending-z^-1 ratio at ``f_hz``."""
+    zi = np.exp(-2j * math.pi * np.asarray(f_hz) * dt_s)
+    return np.polyval(tf[0][::-1], zi) / np.polyval(tf[1][::-1], zi)
+
+
+class _Block:
+    """A small discrete SISO block in state space (from its ascending-z^-1 ratio)."""
+
+    def __init__(self, tf: TF) -> None:
+        n = max(len(tf[0]), len(tf[1]))
+        num = np.zeros(n)
+        den = np.zeros(n)
+        num[:len(tf[0])] = tf[0]
+        den[:len(tf[1])] = tf[1]
+        if n == 1 or not np.any(num):
+            self.A, self.B, self.C, self.D = (np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)),
+                                              np.array([[num[0] / den[0] if n == 1 else 0.0]]))
+        else:
+            self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
+        self.n = self.A.shape[0]
+
+    def step(self, x: np.ndarray, u: float) -> tuple[float, np.ndarray]:
+        y = float((self.C @ x).sum() + self.D[0, 0] * u)
+        return y, self.A @ x + self.B[:, 0] * u
+
+
+def plant_state_space(p: PlantPoint, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Physical states (q_m, dq_m[, q_o, dq_o]) discretised with a zero-order hold:
+    ``(A, B, C)`` with ``x' = A x + B u``, ``tau_in = C x``."""
+    K, J, B = p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.motor_damping_Nms_rad
+    if not p.slip:
+        a = np.array([[0.0, 1.0], [-K / J, -B / J]])
+        b = np.array([[0.0], [1.0 / J]])
+        c = np.array([[K, 0.0]])
+    else:
+        Jl, bl, kg = p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad
+        a = np.array([[0.0, 1.0, 0.0, 0.0], [-K / J, -B / J, K / J, 0.0],
+                      [0.0, 0.0, 0.0, 1.0], [K / Jl, 0.0, -(K + kg) / Jl, -bl / Jl]])
+        b = np.array([[0.0], [1.0 / J], [0.0], [0.0]])
+        c = np.array([[K, 0.0, -K, 0.0]])
+    ad, bd, cd, _, _ = signal.cont2discrete((a, b, c, np.zeros((1, 1))), dt_s, method="zoh")
+    return ad, bd[:, 0], cd[0]
+
+
+def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) -> np.ndarray:
+    """The closed loop's state-transition matrix, built by probing one cycle of the loop
+    (the step's signal flow with small well-conditioned blocks) with unit states.
+
+    Its eigenvalues are the closed-loop poles; unlike the roots of the loop's
+    characteristic polynomial (poles clustered near z = 1 at 1 kHz make those wrong by
+    ~1e-3) they are accurate to rounding.
+    """
+    fb = cfg.feedback
+    ldo = cfg.torque_loop == TorqueLoop.LDO
+    F1, F2 = _Block(tau_in_filter(cfg)), _Block(tau_in_filter(cfg))
+    Dd = _Block(derivative_filter(cfg))
+    if ldo:
+        QP = _Block(qpinv_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s, cfg.plant.stiffness_Nm_rad,
+                                              cfg.plant.motor_inertia_kg_m2, cfg.plant.motor_damping_Nms_rad))
+        Q = _Block(q_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s))
+    else:
+        QP = Q = _Block((np.array([0.0]), np.array([1.0])))
+    ag, bg, cg = plant_state_space(p, cfg.dt_s)
+    d = int(delay_cycles)
+    # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay
+    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 0 if ldo else 1, d]
+    idx = np.cumsum([0] + sizes)
+    n = int(idx[-1])
+
+    def one(x: np.ndarray) -> np.ndarray:
+        xs = [x[idx[i]:idx[i + 1]] for i in range(len(sizes))]
+        out = [None] * len(sizes)
+        y = float(cg @ xs[0])
+        tf_, out[1] = F1.step(xs[1], y)
+        dd, out[2] = Dd.step(xs[2], tf_)
+        qp, out[3] = QP.step(xs[3], tf_)
+        if ldo:
+            m, out[4] = F2.step(xs[4], float(xs[6][0]))
+            q, out[5] = Q.step(xs[5], m)
+            out[7] = xs[7]
+            u = -(fb.kp * tf_ + dd + qp) + q
+            out[6] = np.array([u])
+        else:
+            out[4], out[5], out[6] = xs[4], xs[5], xs[6]
+            integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_
+            out[7] = np.array([integ])
+            u = -(fb.kp * tf_ + dd) + integ
+        if d:
+            w = float(xs[8][0])
+            out[8] = np.concatenate((xs[8][1:], [u]))
+        else:
+            w = u
+            out[8] = xs[8]
+        out[0] = ag @ xs[0] + bg * w
+        return np.concatenate(out)
+
+    return np.column_stack([one(e) for e in np.eye(n)])
+
+
+def closed_loop_poles(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) -> np.ndarray:
+    """Closed-loop poles (eigenvalues of :func:`closed_loop_matrix`)."""
+    return np.linalg.eigvals(closed_loop_matrix(cfg, p, delay_cycles))

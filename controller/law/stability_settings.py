@@ -1,0 +1,58 @@
+"""What the torque loop's stability check assumes and requires: the ``controller.stability``
+section (documented in ``config/controller.yaml``; used by :mod:`capstan.controller.law.stability`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from capstan.models.common.config_tools import get_float, reject_unknown
+from capstan.models.common.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class StabilitySettings:
+    """What the loop check assumes and requires (``controller.stability``, SI)."""
+
+    io_delay_cycles: int = 2
+    stiffness_range_Nm_rad: tuple[float, float] = (200.0, 300.0)
+    inertia_tolerance: float = 0.3
+    link_inertia_kg_m2: float = 0.17
+    link_damping_Nms_rad: float = 0.02
+    link_stiffness_Nm_rad: float = 3.78
+    stick_stiffness_factor: float = 11.0
+    min_phase_margin_deg: float = 45.0
+    min_gain_margin_dB: float = 6.0
+    tension_noise_N: float = 0.3
+    gyro_noise_rad_s: float = 0.002
+
+
+def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
+    """Parse ``controller.stability``.
+
+    :raises ConfigError: naming the key.
+    """
+    d = StabilitySettings()
+    reject_unknown(c, set(StabilitySettings.__dataclass_fields__), p)
+    delay = c.get("io_delay_cycles", d.io_delay_cycles)
+    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 20:
+        raise ConfigError(f"{p}.io_delay_cycles", f"must be an integer in [0, 20], got {delay!r}")
+    rng = c.get("stiffness_range_Nm_rad", list(d.stiffness_range_Nm_rad))
+    if (not isinstance(rng, (list, tuple)) or len(rng) != 2
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in rng)
+            or not 0.0 < rng[0] <= rng[1]):
+        raise ConfigError(f"{p}.stiffness_range_Nm_rad", f"must be [low, high] with 0 < low <= high, got {rng!r}")
+
+    def pos(key: str, hi: float) -> float:
+        return get_float(c, key, p, getattr(d, key), min_value=0.0, max_value=hi)
+
+    return StabilitySettings(
+        delay, (float(rng[0]), float(rng[1])),
+        get_float(c, "inertia_tolerance", p, d.inertia_tolerance, min_value=0.0, max_value=0.9),
+        get_float(c, "link_inertia_kg_m2", p, d.link_inertia_kg_m2, min_value=0.0, min_exclusive=True),
+        pos("link_damping_Nms_rad", 1e3), pos("link_stiffness_Nm_rad", 1e4),
+        get_float(c, "stick_stiffness_factor", p, d.stick_stiffness_factor, min_value=1.0, max_value=1000.0),
+        get_float(c, "min_phase_margin_deg", p, d.min_phase_margin_deg, min_value=0.0, max_value=90.0),
+        get_float(c, "min_gain_margin_dB", p, d.min_gain_margin_dB, min_value=0.0, max_value=40.0),
+        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0))

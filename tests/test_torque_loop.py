@@ -1,0 +1,212 @@
+"""The torque loop with the real I/O delay: the analysis against the code it models,
+against a time-domain run of the real Numba step, against physics, and the start-up check."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, controller_tf, plant_continuous)
+from capstan.controller.law.stability import analyse, check_margins
+from capstan.controller.runtime.config import DaemonConfig
+from capstan.controller.runtime.daemon import build_controller
+from capstan.models.common.config_tools import load_yaml
+from capstan.models.common.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the gains tuned in lock-step (no delay): kp 5, kd 0.05, Q 10 Hz
+LOCKSTEP_LDO = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0},
+                "ldo": {"q_cutoff_hz": 10.0}}
+NO_LIMITS = {"tau_max_Nm": 1e6, "tau_fault_Nm": 1e7, "dtau_max_Nm_s": 1e9, "dtau_fault_Nm_s": 1e10}
+
+
+def _quiet(m: dict) -> dict:
+    m = copy.deepcopy(m)
+    m.update({"gravity": {"enabled": False}, "feedforward": {"enabled": False}, "safety": NO_LIMITS})
+    return m
+
+
+def _run_step(cfg: ControllerConfig, p: PlantPoint | None, delay: int, n: int, kick_Nm: float = 1e-3,
+              tau_in_in: np.ndarray | None = None) -> np.ndarray:
+    """The real Numba step in closed loop with a ZOH-discretised plant and a command FIFO of
+    ``delay`` cycles (or, with ``p`` None, open loop on the given tau_in sequence)."""
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    if p is not None:
+        a, b, c, d = signal.tf2ss(*plant_continuous(p))
+        a, b, c, d, _ = signal.cont2discrete((a, b, c, d), cfg.dt_s, method="zoh")
+        x = np.zeros(a.shape[0])
+    fifo = [0.0] * delay
+    out = np.zeros(n)
+    for k in range(n):
+        if p is not None:
+            tau = float((c @ x).ravel()[0]) + (kick_Nm if k == 10 else 0.0)
+        else:
+            tau = float(tau_in_in[k])
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
+        r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
+        r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["imu_new"] = 1
+        u = ctl.step()
+        out[k] = u if p is None else tau
+        if p is not None:
+            fifo.append(u)
+            x = a @ x + (b * fifo.pop(0)).ravel()
+    return out
+
+
+@pytest.mark.parametrize("m", [LOCKSTEP_LDO, {"torque_loop": "pid", "feedback": {"kp": 0.5, "kd_s": 0.01,
+                                                                                 "ki_1_s": 3.0}}])
+def test_controller_transfer_function_is_the_step(m):
+    """C(z) built from the step's coefficient functions reproduces the compiled step's
+    response to a tau_in pulse to rounding (the analysis models the code that runs)."""
+    cfg = ControllerConfig.from_mapping(_quiet(m))
+    x = np.zeros(400)
+    x[5] = 1e-3
+    u = _run_step(cfg, None, 0, len(x), tau_in_in=x)
+    c = controller_tf(cfg)
+    assert np.max(np.abs(u + signal.lfilter(c[0], c[1], x))) < 1e-9 * np.max(np.abs(u))
+
+
+@pytest.mark.parametrize("m,p,delay,grows", [
+    (LOCKSTEP_LDO, PlantPoint(2640.0, 0.73, 0.5), 2, True),     # sheath stick, real delay: rings
+    (LOCKSTEP_LDO, PlantPoint(2640.0, 0.73, 0.5), 0, False),    # the same in lock-step: fine
+    (LOCKSTEP_LDO, PlantPoint(240.0, 0.73, 0.5), 2, False),
+    ({}, PlantPoint(2640.0, 0.95, 0.5), 2, False),              # shipped gains
+    ({}, PlantPoint(250.0, 0.73, 0.5, slip=True), 2, False),
+])
+def test_predicted_poles_agree_with_a_time_domain_run_of_the_step(m, p, delay, grows):
+    cfg = ControllerConfig.from_mapping(_quiet(m))
+    rho = float(np.max(np.abs(closed_loop_poles(cfg, p, delay))))
+    assert (rho > 1.0) == grows
+    if grows:
+        # growth from one 100-cycle window to the next as the dominant pole predicts
+        tau = _run_step(cfg, p, delay, 320)
+        a, b = np.max(np.abs(tau[100:200])), np.max(np.abs(tau[200:300]))
+        assert 1.0 / 3.0 < (b / a) / rho ** 100 < 3.0 and b > 10.0 * a
+    else:
+        tau = _run_step(cfg, p, delay, 6000)
+        assert np.max(np.abs(tau[-1000:])) < np.max(np.abs(tau[:1000]))
+
+
+def test_open_loop_limit_is_the_motor_on_the_cable():
+    """With no feedback and no delay the loop's slowest poles are the plant's own:
+    f_n = sqrt(K_c / J_m) / 2 pi (design.md: 2.9-3.1 Hz) with damping B / (2 sqrt(K J))."""
+    cfg = ControllerConfig.from_mapping(_quiet({"torque_loop": "pid", "feedback": {"kp": 0.0, "kd_s": 0.0,
+                                                                                 "ki_1_s": 0.0}}))
+    p = PlantPoint(240.0, 0.73, 0.5)
+    poles = closed_loop_poles(cfg, p, 0)
+    s = np.log(poles[np.abs(poles) > 0.9]) / cfg.dt_s
+    wn, zeta = math.sqrt(240.0 / 0.73), 0.5 / (2.0 * math.sqrt(240.0 * 0.73))
+    osc = s[np.abs(s.imag) > 1.0]
+    assert np.allclose(np.abs(osc), wn, rtol=1e-6)
+    assert np.allclose(-osc.real / np.abs(osc), zeta, rtol=1e-4)
+    assert 2.8 < wn / (2 * math.pi) < 3.0
+
+
+def test_lockstep_gains_ring_where_the_hil_log_rang():
+    """The lock-step gains with the 2-cycle delay on the sheath-stick plant (N + 1 = 11
+    times K_c for the 10-node HIL model) grow at 40-55 Hz: the HIL log's command peaked at
+    46-49 Hz (README "Torque loop")."""
+    cfg = ControllerConfig.from_mapping(LOCKSTEP_LDO)
+    rep = analyse(cfg)
+    sheath_nominal = rep.points[22]           # sheath stick, middle stiffness and inertia
+    assert not sheath_nominal.stable
+    assert 40.0 < sheath_nominal.dominant_pole_hz < 55.0
+    assert not rep.ok
+
+
+@pytest.mark.parametrize("name", ["hil.yaml", "rig.yaml", "controller.yaml"])
+def test_shipped_configs_meet_the_margins(name):
+    raw = load_yaml(ROOT / "config" / name)["controller"]
+    rep = analyse(ControllerConfig.from_mapping(raw))
+    assert rep.all_stable
+    assert rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0
+    assert len(rep.points) == 36
+
+
+def _daemon_cfg(**controller) -> dict:
+    raw = load_yaml(ROOT / "config" / "hil.yaml")
+    raw["controller"].update(controller)
+    return raw
+
+
+def test_start_up_refuses_gains_outside_the_margins_with_the_margin_they_would_have():
+    cfg = DaemonConfig.from_mapping(_daemon_cfg(**LOCKSTEP_LDO))
+    with pytest.raises(ConfigError) as err:
+        build_controller(cfg)
+    assert err.value.key == "controller.feedback"
+    assert "phase margin" in err.value.reason and "UNSTABLE" in err.value.reason
+
+
+def test_lab_override_starts_them_and_says_why():
+    raw = _daemon_cfg(**LOCKSTEP_LDO)
+    raw["lab_override"] = {"margins": True, "reason": "reproduce the 48 Hz ring"}
+    cfg = DaemonConfig.from_mapping(raw)
+    assert cfg.lab_override.margins and cfg.lab_override.reason == "reproduce the 48 Hz ring"
+    assert build_controller(cfg) is not None
+    assert not check_margins(ControllerConfig.from_mapping(raw["controller"]), override=True).ok
+
+
+def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
+    """kp alone (no damping) on the lightly damped plant misses the gain margin; the
+    shipped integral trim meets it."""
+    bad = ControllerConfig.from_mapping({"torque_loop": "pid", "feedback": {"kp": 0.5, "kd_s": 0.0,
+                                                                          "ki_1_s": 0.15}})
+    with pytest.raises(ConfigError, match="gain margin"):
+        check_margins(bad)
+    assert check_margins(ControllerConfig.from_mapping({})).ok
+
+
+def _stick_input_stiffness(amp_Nm: float) -> float:
+    """Input stiffness [Nm/rad] of the HIL rig's distributed model (10 nodes) at rest under a
+    2 Hz motor torque sine of ``amp_Nm``: slope of tau_in over the motor angle."""
+    from capstan.models.plant.rig import SensorNoise, SimulatedRig
+    raw = dict(load_yaml(ROOT / "config" / "hil.yaml")["hil"]["plant"])
+    raw.pop("noise", None)
+    raw.pop("seed", None)
+    rig = SimulatedRig.from_mapping(raw)
+    rig.noise = SensorNoise.none()
+    for _ in range(500):
+        rig.step(0.0, 0.0, 1e-3)
+    q0, t0 = rig.model.q_in_rad, rig.model.tau_in_Nm
+    q, t = np.zeros(1000), np.zeros(1000)
+    for k in range(1000):
+        rig.step(amp_Nm * math.sin(2 * math.pi * 2.0 * k * 1e-3), 0.0, 1e-3)
+        q[k], t[k] = rig.model.q_in_rad - q0, rig.model.tau_in_Nm - t0
+    return float(np.polyfit(q, t, 1)[0])
+
+
+def test_sheath_stick_stiffness_is_what_the_distributed_model_shows():
+    """The grid's stick levels against the distributed model (written apart from this
+    analysis): small motions see about (N + 1) K_c, larger ones less, never below K_c;
+    the grid spans K_c .. stick_stiffness_factor x K_c."""
+    kc = 240.0
+    small, large = _stick_input_stiffness(0.05), _stick_input_stiffness(1.0)
+    f = ControllerConfig.from_mapping({}).stability.stick_stiffness_factor
+    assert 0.85 * f * kc < small <= 1.02 * f * kc
+    assert kc < large < small
+
+
+
+def test_loop_command_prints_strict_json_and_fails_on_missed_margins(capsys, tmp_path):
+    import json
+
+    import yaml
+
+    from capstan.tools.cli import main
+    assert main(["experiment", "loop", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert doc["ok"] and doc["worst_gain_margin_dB"] >= 6.0 and len(doc["points"]) == 36
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"controller": LOCKSTEP_LDO}))
+    assert main(["experiment", "loop", "--config", str(bad), "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert not doc["ok"] and not doc["all_stable"]
