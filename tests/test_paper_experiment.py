@@ -112,6 +112,25 @@ def test_a_paper_number_of_another_case_shows_no_ratio_and_spreads_render() -> N
     assert lines[3].startswith("| 11c | θ1 stiff, this work [Nm] | 0.3416 | 0.05 | 0.04–0.06 (3) | 0.1464 |")
 
 
+def test_eq25_section_pairs_the_two_readings_row_by_row() -> None:
+    from capstan.tools.experiments.paper.common import row
+    from capstan.tools.experiments.paper.report import eq25_lines
+
+    rows = [row("Fig. 9 (e) bent, averaged, eq 25 at the field minimum, N=1", 0.4406, 0.37, "Nm",
+                spread=(0.32, 0.43, 3), rid="9e-fiel-N1"),
+            row("Fig. 9 (e) bent, averaged, eq 25 friction-preserving, N=1", 0.4406, 0.16, "Nm",
+                spread=(0.12, 0.19, 3), rid="9e-fric-N1"),
+            row("identified μ on θ5, eq 25 friction preserving", 0.052, 0.0534, "-", rid="11-mu-fric"),
+            row("identified μ on θ5, eq 25 field minimum", 0.052, 0.0556, "-", rid="11-mu-fiel"),
+            row("Fig. 9 (c) distributed, N=1", 1.2132, 0.15, "Nm", rid="9c-dist-N1")]
+    lines = eq25_lines({"fig9_10": {"rows": rows}})
+    body = [li for li in lines if li.startswith("| ") and not li.startswith("| quantity")]
+    assert body == ["| Fig. 9 (e) bent, N=1 [Nm] | 0.4406 | 0.37 (0.32–0.43 (3)) | 0.16 (0.12–0.19 (3)) | "
+                    "9e-fiel-N1, 9e-fric-N1 |",
+                    "| identified μ on θ5 | 0.052 | 0.0556 | 0.0534 | 11-mu-fiel, 11-mu-fric |"]
+    assert eq25_lines({"fig9_10": {"rows": rows[-1:]}}) == []
+
+
 def test_claim_verdict_counts_seeds_and_report_flags_a_plant_dependent_statement() -> None:
     from capstan.tools.experiments.paper.common import claim
     from capstan.tools.experiments.paper.report import claims_lines

@@ -11,6 +11,7 @@ same quantity and case as ours shows "not like-for-like" instead of a ratio.
 from __future__ import annotations
 
 import math
+import re
 import statistics
 from typing import Any
 
@@ -59,6 +60,41 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
         out.append(f"| {_cell(r.get('id') or '')} | {_cell(q)} | {fmt(r['paper'])} | {fmt(r['ours'])} | "
                    f"{spread_text(r.get('spread'))} | {ratio_text(r)} | {_cell(r['note'])} |")
     return out
+
+
+#: (field-minimum, friction-preserving) fragments of the row ids and quantities of the two eq 25 readings
+_EQ25_ID = (("-fiel", "-fric"), ("reduced_fi", "reduced_fr"))
+_EQ25_TEXT = (", averaged, eq 25 friction-preserving", ", eq 25 friction-preserving", ", eq 25 friction preserving",
+              " eq 25 friction preserving")
+
+
+def _with_spread(r: dict[str, Any]) -> str:
+    sp = spread_text(r.get("spread"))
+    return fmt(r["ours"]) + (f" ({sp})" if sp != "–" else "")
+
+
+def eq25_lines(figs: dict[str, Any]) -> list[str]:
+    """Both readings of eq 25 side by side: every row pair that differs only in the reading."""
+    rows = {r["id"]: r for key in ORDER if key in figs for r in figs[key]["rows"] if r.get("id")}
+    out = []
+    for rid, r in rows.items():
+        for a, b in _EQ25_ID:
+            if a in rid and rid.replace(a, b) in rows:
+                f = rows[rid.replace(a, b)]
+                label = re.sub(r" \(range [^)]*\)", "", f["quantity"])     # a range of one reading only
+                for t in _EQ25_TEXT:
+                    label = label.replace(t, "")
+                unit = f" [{r['unit']}]" if r.get("unit") and r["unit"] != "-" else ""
+                out.append(f"| {_cell(label)}{unit} | {fmt(r['paper'])} | {_with_spread(r)} | {_with_spread(f)} | "
+                           f"{rid}, {f['id']} |")
+    if not out:
+        return []
+    return ["## Eq 25: both readings side by side", "",
+            "Eq 25 as printed (every spring at the field minimum, 2 T(s_min)) against the averaged pretension that "
+            "preserves the field's total friction (twice its bending-weighted mean), from the rows below; ours = "
+            "mean over the seeds (spread min–max (n)). Which one the data support, and the feedforward's default: "
+            "see the recommendation.", "",
+            "| quantity | paper | field minimum | friction-preserving | rows |", "|---|---:|---:|---:|---|"] + out + [""]
 
 
 def claims_lines(figs: dict[str, Any]) -> list[str]:
@@ -135,6 +171,7 @@ def render_report(doc: dict[str, Any]) -> str:
     lines.append(f"| total | {doc['total_wall_s']:.1f} | | | |")
     lines += ["", "Figs. 9-10 and 11 share their measured runs; the first of the two to run carries their "
               "simulation time.", ""]
+    lines += eq25_lines(figs)
     lines += claims_lines(figs)
     lines += ["## Recommendation for a rig engineer", "",
               "Derived from this run's Figs. 9-10, 11 and 13 (rules in `tools/experiments/paper/recommend.py`).", ""]
