@@ -11,6 +11,8 @@ from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
 from capstan.models.common.errors import ConfigError
 from capstan.controller.law.feedforward import friction_curve_Nm, friction_torque_per_N
+from capstan.models.common.errors import ConfigError
+from capstan.models.transmission.pretension import Eq25Reading
 
 MU = 0.052
 R = 0.04
@@ -18,10 +20,25 @@ R = 0.04
 
 @pytest.mark.parametrize("theta", [0.3, 3.0, 6.0])
 def test_friction_magnitude_uniform_routing_closed_form(theta):
-    """Uniform routing, equal ends: T0_eq = 2 T0 exp(-mu theta/2), tau_fc = mu theta T0_eq r_out."""
-    cfg = ControllerConfig.from_mapping({"feedforward": {"routing": {"length_m": 1.379, "theta_rad": theta}}})
-    expected = MU * theta * 2.0 * math.exp(-MU * theta / 2.0) * R
-    assert friction_torque_per_N(cfg.feedforward, R) == pytest.approx(expected, rel=1e-9)
+    """Uniform routing, equal ends, tau_fc = mu theta T0_eq r_out with T0_eq per eq 25 reading:
+    friction-preserving (default) 4 T0 (1 - exp(-mu theta/2)) / (mu theta); printed minimum
+    2 T0 exp(-mu theta/2)."""
+    routing = {"length_m": 1.379, "theta_rad": theta}
+    cfg = ControllerConfig.from_mapping({"feedforward": {"routing": routing}})
+    x = MU * theta
+    assert cfg.feedforward.eq25_reading == Eq25Reading.FRICTION_PRESERVING
+    assert friction_torque_per_N(cfg.feedforward, R) == pytest.approx(
+        MU * theta * 4.0 * (1.0 - math.exp(-x / 2.0)) / x * R, rel=1e-9)
+    cfg = ControllerConfig.from_mapping({"feedforward": {"routing": routing, "eq25_reading": "field_minimum"}})
+    assert friction_torque_per_N(cfg.feedforward, R) == pytest.approx(MU * theta * 2.0 * math.exp(-x / 2.0) * R,
+                                                                       rel=1e-9)
+    # the choice round-trips through the logged config
+    assert ControllerConfig.from_mapping(cfg.to_mapping()).feedforward.eq25_reading == Eq25Reading.FIELD_MINIMUM
+
+
+def test_eq25_reading_rejects_unknown_value_naming_the_key():
+    with pytest.raises(ConfigError, match=r"feedforward\.eq25_reading"):
+        ControllerConfig.from_mapping({"feedforward": {"eq25_reading": "arc_length_mean"}})
 
 
 def test_friction_magnitude_depends_on_total_bending_not_profile_shape():

@@ -36,6 +36,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         routing: {length_m: 1.379, theta_rad: 3.0}   # any form of models.routing
         pretension: measured         # measured (mean of the four load cells) | fixed
         T0_fixed_N: 150.0            # used when pretension is fixed
+        eq25_reading: friction_preserving  # averaged pretension T0_eq of eq (25): friction_preserving
+                                     # (bending-weighted field mean, the distributed model's
+                                     # sliding friction) | field_minimum (2 T(s_min) as printed)
         zeta_s: 1.2                  # static/sticky factor (>= zeta_c)
         zeta_c: 1.0                  # Coulomb factor
         eta_s_rad_s: 0.05            # Stribeck velocity
@@ -89,6 +92,7 @@ from capstan.controller.law.learned_effects import check_entries
 from capstan.controller.law.stability_settings import StabilitySettings, stability_from_mapping
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
 from capstan.models.common.errors import ConfigError
+from capstan.models.transmission.pretension import Eq25Reading
 
 
 class TorqueLoop(IntEnum):
@@ -152,6 +156,7 @@ class FeedforwardConfig:
     routing_length_m: float = 1.379
     pretension: PretensionSource = PretensionSource.MEASURED
     T0_fixed_N: float = 150.0
+    eq25_reading: Eq25Reading = Eq25Reading.FRICTION_PRESERVING
     zeta_s: float = 1.2
     zeta_c: float = 1.0
     eta_s_rad_s: float = 0.05
@@ -285,6 +290,7 @@ class ControllerConfig:
                 "routing": {"curvature_profile": [list(p) for p in ff.routing_profile],
                             "length_m": ff.routing_length_m},
                 "pretension": ff.pretension.name.lower(), "T0_fixed_N": ff.T0_fixed_N,
+                "eq25_reading": ff.eq25_reading.name.lower(),
                 "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
                 "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
                 "dead_band_rad_s": ff.dead_band_rad_s,
@@ -309,7 +315,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
     from capstan.models.transmission.routing import Routing
 
     reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
-                       "T0_fixed_N", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
+                       "T0_fixed_N", "eq25_reading", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
                        "dead_band_rad_s", "effects", "effects_shape"}, p)
     d = FeedforwardConfig()
     if "routing" in c:
@@ -341,6 +347,8 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         routing_profile=profile, routing_length_m=length,
         pretension=PretensionSource[get_choice(c, "pretension", ("measured", "fixed"), p, "measured").upper()],
         T0_fixed_N=get_float(c, "T0_fixed_N", p, d.T0_fixed_N, min_value=0.0),
+        eq25_reading=Eq25Reading[get_choice(c, "eq25_reading", tuple(r.name.lower() for r in Eq25Reading), p,
+                                            d.eq25_reading.name.lower()).upper()],
         zeta_s=zeta_s, zeta_c=zeta_c,
         eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
         b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),

@@ -3,8 +3,11 @@ gravity model of the link.
 
 Friction magnitude. With the paper's symmetric approximation (§4.4.1) the boundary
 pretension is the mean of the four fixture tensions, ``T0 = mean(T_lc)``; with equal
-ends the averaged pretension of eq (25) is linear in it, ``T0_eq = c(routing, mu) T0``
-(``c = 2 exp(-mu theta / 2)`` on a uniform routing), and so is the nominal friction
+ends the averaged pretension of eq (25) is linear in it, ``T0_eq = c(routing, mu) T0``, in
+either reading of eq 25 (``feedforward.eq25_reading``, :class:`Eq25Reading`):
+``c = 4 (1 - exp(-mu theta / 2)) / (mu theta)`` when it preserves the field's total friction
+(default: the sliding friction of the distributed model, see docs/paper/report.md),
+``c = 2 exp(-mu theta / 2)`` at the field minimum as printed. So is the nominal friction
 torque of eq (19), ``tau_fc = mu theta T0_eq r_out``. The factor
 ``tau_fc / T0`` [Nm/N] is therefore computed once from the routing at config time
 (:func:`friction_torque_per_N`) and the step scales it by the live pretension estimate.
@@ -21,18 +24,19 @@ import numpy as np
 from numba import njit
 
 from capstan.controller.law.config import FeedforwardConfig
-from capstan.models.transmission.pretension import pretension_field
+from capstan.models.transmission.pretension import Eq25Reading, pretension_field
 from capstan.models.transmission.reduced import nominal_friction_torque_Nm, stribeck_friction_Nm
 
 
 def friction_torque_per_N(ff: FeedforwardConfig, r_out_m: float) -> float:
-    """Nominal friction torque per Newton of boundary pretension [Nm/N] for ``ff``'s routing.
+    """Nominal friction torque per Newton of boundary pretension [Nm/N] for ``ff``'s routing,
+    with ``T0_eq`` in ``ff.eq25_reading``.
 
     :raises ModelError: if the pretension field cannot be evaluated.
     """
     routing = ff.routing()
     t_ref = 100.0
-    t0_eq = pretension_field(routing, ff.mu, t_ref, t_ref).T0_eq_N
+    t0_eq = pretension_field(routing, ff.mu, t_ref, t_ref).T0_eq(Eq25Reading(ff.eq25_reading))
     return nominal_friction_torque_Nm(t0_eq, ff.mu, routing.theta_total_rad, r_out_m) / t_ref
 
 

@@ -229,6 +229,31 @@ def _set(obj: Any, name: str, value: float) -> Any:
     return dataclasses.replace(obj, **{head: value})
 
 
+def parameter_values(model: Any, names: Sequence[str]) -> np.ndarray:
+    """(n,) current values of the named (dotted for nested) float fields of ``model``.
+
+    :raises ModelError: on an unknown name.
+    """
+    try:
+        return np.array([_get(model, n) for n in names], dtype=float)
+    except AttributeError as exc:
+        raise ModelError(f"unknown parameter name: {exc}") from exc
+
+
+def with_parameters(model: Any, names: Sequence[str], values: ArrayLike) -> Any:
+    """A copy of the frozen dataclass ``model`` with the named fields set to ``values``.
+
+    :raises ModelError: on an unknown name or a value the model refuses.
+    """
+    m = model
+    try:
+        for n, v in zip(names, np.asarray(values, dtype=float)):
+            m = _set(m, n, float(v))
+    except TypeError as exc:
+        raise ModelError(f"unknown parameter name in {list(names)}: {exc}") from exc
+    return m
+
+
 def fit_parameters(model: TorquePredictor, names: Sequence[str], t_s: ArrayLike, tau_in_Nm: ArrayLike,
                    tau_out_meas_Nm: ArrayLike, lower: Sequence[float] | None = None,
                    upper: Sequence[float] | None = None) -> tuple[Any, float]:
@@ -248,18 +273,12 @@ def fit_parameters(model: TorquePredictor, names: Sequence[str], t_s: ArrayLike,
     y = np.asarray(tau_out_meas_Nm, dtype=float)
     if y.shape != u.shape:
         raise ModelError(f"measured tau_out shape {y.shape} differs from tau_in shape {u.shape}")
-    try:
-        x0 = np.array([_get(model, n) for n in names])
-    except AttributeError as exc:
-        raise ModelError(f"unknown parameter name: {exc}") from exc
+    x0 = parameter_values(model, names)
     lo = np.full(x0.size, -np.inf) if lower is None else np.asarray(lower, dtype=float)
     hi = np.full(x0.size, np.inf) if upper is None else np.asarray(upper, dtype=float)
 
     def build(x: np.ndarray) -> Any:
-        m = model
-        for n, v in zip(names, x):
-            m = _set(m, n, float(v))
-        return m
+        return with_parameters(model, names, x)
 
     def resid(x: np.ndarray) -> np.ndarray:
         try:
@@ -274,5 +293,5 @@ def fit_parameters(model: TorquePredictor, names: Sequence[str], t_s: ArrayLike,
 
 __all__ = [
     "BaselineKind", "GatedTransmission", "PretensionAverage", "ReducedModel", "TorquePredictor", "fit_parameters",
-    "gated_step", "predict_tau_out", "rmse_Nm", "single_sided_model", "single_sided_pretension_N", "wu_model",
+    "gated_step", "parameter_values", "predict_tau_out", "rmse_Nm", "single_sided_model", "single_sided_pretension_N", "with_parameters", "wu_model",
 ]

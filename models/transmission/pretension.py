@@ -28,6 +28,24 @@ For ``T_a = T_b = T0`` this is eq 25; on a uniform routing ``T0_eq = 2 T0 exp(-m
 ``T0_eq`` is a per-cable *sum of two tensions*: at rest the two springs of the N = 1
 reduced cable carry ``T0_eq / 2`` each (see :mod:`capstan.models.transmission.reduced`).
 
+**Two readings of eq (25)** (:class:`Eq25Reading`). The printed formula is the sum of both
+branches at ``s_min``, i.e. ``2 T(s_min)``: read literally, every spring of the averaged
+model sits at the field's *minimum* (``FIELD_MINIMUM``, ``T0_eq_N``). The text says instead
+that the averaged pretension preserves the total friction of the distributed model under
+steady sliding. Node i of the distributed model carries a Coulomb friction
+``mu theta_i`` x (its mean spring tension) (eq 11/13), so the total is
+``mu int kappa(s) T(s) ds`` per cable, and a uniform field preserves it when it equals the
+*bending-weighted* mean of the field (``FRICTION_PRESERVING``, ``T0_eq_friction_N``)::
+
+    T0_eq = (2 / theta) int_0^theta T dC
+          = (2 / (mu theta)) [ T_a (1 - e^{-mu C*}) + T_b (1 - e^{-mu (theta - C*)}) ],  C* = C(s_min).
+
+With ``dC = kappa ds`` the integral does not depend on where the bends are, only on theta and
+the end values (as for the minimum). Symmetric ends: ``T0_eq = 4 T0 (1 - e^{-mu theta/2}) /
+(mu theta)``, between the minimum ``2 T0 e^{-mu theta/2}`` and ``2 T0``; both readings tend to
+``T_a + T_b`` as ``mu theta -> 0``. (The arc-length mean of the field is a third number; it
+depends on the profile and does not preserve the friction.)
+
 **Inconsistent ends.** If ``|ln(T_a / T_b)| > mu theta`` one branch dominates the whole
 cable; no static capstan field can have those two end values. ``C(s_min)`` is then clipped
 to the weaker end (``s_min_norm`` = 0 or 1, ``clipped = True``, a warning is logged) and the
@@ -39,6 +57,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -49,12 +68,31 @@ from capstan.models.transmission.routing import Routing
 log = logging.getLogger(__name__)
 
 
+class Eq25Reading(IntEnum):
+    """Which uniform pretension eq (25) stands for (see the module docstring)."""
+
+    FIELD_MINIMUM = 1        #: ``2 T(s_min)`` as printed: every spring at the field's minimum
+    FRICTION_PRESERVING = 2  #: twice the bending-weighted field mean: same total Coulomb friction
+
+    @staticmethod
+    def parse(text: str) -> "Eq25Reading":
+        """``"field_minimum"`` or ``"friction_preserving"`` (case-insensitive).
+
+        :raises ModelError: on any other text.
+        """
+        key = str(text).strip().upper()
+        if key not in Eq25Reading.__members__:
+            raise ModelError(f"eq 25 reading must be one of {[m.name.lower() for m in Eq25Reading]}, got {text!r}")
+        return Eq25Reading[key]
+
+
 @dataclass(frozen=True)
 class PretensionField:
     """Summary of the pretension field of one cable.
 
     :ivar s_min_norm: normalised arc length [0, 1] of the minimum-pretension point (eq 24).
-    :ivar T0_eq_N: averaged (equivalent) pretension of eq 25 [N] (sum of both branches at s_min).
+    :ivar T0_eq_N: averaged (equivalent) pretension of eq 25 as printed [N] (sum of both branches
+        at s_min: :attr:`Eq25Reading.FIELD_MINIMUM`).
     :ivar T_min_N: field value at ``s_min`` [N] (= T0_eq / 2 unless clipped).
     :ivar bending_at_min_rad: ``int_0^{s_min} kappa ds`` [rad].
     :ivar T_a_N: boundary pretension at the input-side fixture [N].
@@ -62,6 +100,8 @@ class PretensionField:
     :ivar mu: sheath friction coefficient [-].
     :ivar theta_total_rad: total bending of the routing [rad].
     :ivar clipped: True if the end values exceed the capstan ratio (see module docstring).
+    :ivar T0_eq_friction_N: averaged pretension that preserves the field's total friction [N]
+        (twice its bending-weighted mean: :attr:`Eq25Reading.FRICTION_PRESERVING`).
     """
 
     s_min_norm: float
@@ -73,6 +113,11 @@ class PretensionField:
     mu: float
     theta_total_rad: float
     clipped: bool
+    T0_eq_friction_N: float = math.nan
+
+    def T0_eq(self, reading: Eq25Reading) -> float:
+        """Averaged pretension of eq 25 [N] in the given reading (per-cable sum of two tensions)."""
+        return self.T0_eq_N if Eq25Reading(reading) == Eq25Reading.FIELD_MINIMUM else self.T0_eq_friction_N
 
 
 def _check(mu: float, T_a_N: float, T_b_N: float) -> None:
@@ -113,14 +158,25 @@ def pretension_field(routing: Routing, mu: float, T_a_N: float, T_b_N: float) ->
         s_norm = 0.5 * (s_lo + s_hi) / routing.length_m
     branch_a = T_a_N * math.exp(-mu * c_star)
     branch_b = T_b_N * math.exp(-mu * (theta - c_star))
+    if theta > 0.0:
+        # int_0^theta max(branches) dC, each piece T (1 - e^{-mu c}) / mu written as T c phi(mu c)
+        t_eq_fric = 2.0 / theta * (T_a_N * c_star * _decay_mean(mu * c_star)
+                                   + T_b_N * (theta - c_star) * _decay_mean(mu * (theta - c_star)))
+    else:
+        t_eq_fric = T_a_N + T_b_N
     if clipped:
         log.warning("boundary pretensions T_a=%.1f N, T_b=%.1f N exceed the capstan ratio exp(mu theta)=%.3f; "
                     "minimum point clipped to the weaker end", T_a_N, T_b_N, math.exp(mu_theta))
     return PretensionField(
         s_min_norm=float(s_norm), T0_eq_N=branch_a + branch_b, T_min_N=max(branch_a, branch_b),
         bending_at_min_rad=float(c_star), T_a_N=T_a_N, T_b_N=T_b_N, mu=mu,
-        theta_total_rad=theta, clipped=clipped,
+        theta_total_rad=theta, clipped=clipped, T0_eq_friction_N=float(t_eq_fric),
     )
+
+
+def _decay_mean(x: float) -> float:
+    """Mean of ``e^{-u}`` over ``u in [0, x]``: ``(1 - e^{-x}) / x`` (1 at x = 0, no cancellation)."""
+    return -math.expm1(-x) / x if x > 0.0 else 1.0
 
 
 def tension_at(routing: Routing, mu: float, T_a_N: float, T_b_N: float, s_m: ArrayLike) -> np.ndarray:

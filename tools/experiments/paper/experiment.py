@@ -3,17 +3,19 @@
     capstan experiment paper --out DIR [--quick] [--seed N] [--only fig6,fig9_10,...]
 
 Runs the figure builders of :mod:`capstan.tools.experiments.paper.figs_stiffness` (Figs. 6, 7),
-:mod:`capstan.tools.experiments.paper.figs_profiles` (Fig. 8), :mod:`capstan.tools.experiments.paper.figs_prediction` (Figs. 9-10, 11)
+:mod:`capstan.tools.experiments.paper.figs_profiles` (Fig. 8), :mod:`capstan.tools.experiments.paper.figs_prediction` (Figs. 9-10),
+:mod:`capstan.tools.experiments.paper.figs_models` (Fig. 11)
 and :mod:`capstan.tools.experiments.paper.figs_interaction` (Fig. 13) on "measured" runs of the full distributed
 plant with sensor noise, times each one, and writes into ``DIR``:
 
 * ``report.md``: per figure a table *quantity | paper | ours | ratio | note* with the PNGs
   embedded, a wall-time column per figure, and the recommendation derived from this run's
   numbers (:mod:`capstan.tools.experiments.paper.recommend`);
-* ``results.json``: the settings, every figure's rows and data, the recommendation;
+* ``results.json``: the settings, every figure's rows, claims and data, the recommendation and
+  the fingerprint of the sources (:mod:`capstan.tools.experiments.paper.fingerprint`);
 * the PNGs.
 
-Figs. 9-10 and 11 share their measured runs (:class:`capstan.tools.experiments.paper.figs_prediction.RunCache`);
+Figs. 9-10 and 11 share their measured runs (:class:`capstan.tools.experiments.paper.run_cache.RunCache`);
 the first of them to run pays for the simulation of the shared runs.
 """
 
@@ -43,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options ``--out`` (required), ``--quick``, ``--seed``, ``--only``."""
     parser.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     parser.add_argument("--quick", action="store_true",
-                        help="coarse grids (5 routing groups, N in 1,2,4,10,20, 30-node plant) for CI")
+                        help="coarse grids (6 routing groups, N in 1,2,4,10,20, 30-node plant) for CI")
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise / unmodelled-effects seed")
     parser.add_argument("--only", type=str, default=None,
                         help=f"comma-separated subset of {','.join(FIGURES)} (default: all)")
@@ -66,17 +68,19 @@ def parse_only(text: str | None) -> tuple[str, ...]:
 def _builders(settings: Settings) -> dict[str, Callable[[Path], dict[str, Any]]]:
     """Figure key -> builder taking the output directory (imports are lazy: matplotlib, Numba)."""
     from capstan.tools.experiments.paper import figs_interaction as inter
+    from capstan.tools.experiments.paper import figs_models as models
     from capstan.tools.experiments.paper import figs_prediction as pred
     from capstan.tools.experiments.paper import figs_profiles as prof
     from capstan.tools.experiments.paper import figs_stiffness as stiff
+    from capstan.tools.experiments.paper.run_cache import RunCache
 
-    cache = pred.RunCache(settings)
+    cache = RunCache(settings)
     return {
         "fig6": lambda d: stiff.fig6(settings, d),
         "fig7": lambda d: stiff.fig7(settings, d),
         "fig8": lambda d: prof.fig8(settings, d),
         "fig9_10": lambda d: pred.fig9_10(settings, d, cache),
-        "fig11": lambda d: pred.fig11(settings, d, cache),
+        "fig11": lambda d: models.fig11(settings, d, cache),
         "fig13": lambda d: inter.fig13(settings, d),
     }
 
@@ -91,6 +95,7 @@ def run_paper(out_dir: Path, settings: Settings, only: tuple[str, ...] = FIGURES
     :raises OSError: if ``out_dir`` cannot be written.
     :raises CapstanError: if the start-up runs (:func:`_warm_up`) fail.
     """
+    from capstan.tools.experiments.paper.fingerprint import source_fingerprint
     from capstan.tools.experiments.paper.recommend import recommend
     from capstan.tools.experiments.paper.report import render_report
 
@@ -99,6 +104,7 @@ def run_paper(out_dir: Path, settings: Settings, only: tuple[str, ...] = FIGURES
     figures: dict[str, Any] = {}
     failed: dict[str, str] = {}
     t_start = time.perf_counter()
+    digest, n_files = source_fingerprint()                # the sources as they were when the run started
     startup_s = _warm_up(settings, only)
     log.info("start-up (compiled kernels loaded): %.1f s", startup_s)
     for key in only:
@@ -114,6 +120,7 @@ def run_paper(out_dir: Path, settings: Settings, only: tuple[str, ...] = FIGURES
         figures[key] = res
         log.info("%s: %d rows, %d figure(s), %.1f s", key, len(res["rows"]), len(res["figures"]), res["wall_s"])
     doc: dict[str, Any] = {
+        "source_fingerprint": {"sha256": digest, "files": n_files},
         "settings": dataclasses.asdict(settings),
         "figures_requested": list(only),
         "figures": figures,

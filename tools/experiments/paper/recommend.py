@@ -13,9 +13,14 @@ Rules (no number here is taken from the paper; every one comes from the run's re
   measured run N = 1 can win only because its friction error cancels an unmodelled one.
   Groups are split into "bent" and "flat" at the middle of the evaluated bending range.
 * **pretension model**: per evaluated N, which of the distributed (eq 23) and the averaged
-  (eq 25) pretension has the lower mean RMSE over the groups.
+  (eq 25, each reading) pretension has the lower mean RMSE over the groups.
 * **reduced model**: its RMSE (parameters identified on theta_5) next to the distributed model
   at the recommended N, per group, on the same measured runs (stiffness-dominated output).
+* **eq 25 reading** (the feedforward's default, ``controller.feedforward.eq25_reading``): the
+  reading that wins more of three data tests: (1) Fig. 7's loop heights on the plant without
+  unmodelled effects (sliding friction) against ``2 tau_fc`` of eq 19 with each reading (closer
+  on more groups), (2) Fig. 10's mean RMSE of the averaged-pretension predictions over groups and
+  N, (3) Fig. 11's mean RMSE of the reduced model over groups, both outputs.
 * **feedforward placement**: per condition and feedforward controller, the placement (torque
   reference or motor command as eq 28 prints it) with the lower mean ``|tau_h|``; a run whose
   safety stage latched counts as worse than any run that did not.
@@ -47,6 +52,9 @@ def recommend(figures: dict[str, Any], tol: float = N_TOLERANCE) -> dict[str, An
             out["reduced_model"] = _reduced_vs_distributed(figures["fig11"]["data"], figures["fig9_10"]["data"],
                                                            out["n"])
             out["text"] += out["reduced_model"]["text"]
+    if any(k in figures for k in ("fig7", "fig9_10", "fig11")):
+        out["eq25"] = _eq25_choice(figures)
+        out["text"] += out["eq25"]["text"]
     if "fig13" in figures:
         out["placement"] = _placement(figures["fig13"]["data"])
         out["text"] += out["placement"]["text"]
@@ -78,7 +86,9 @@ def _n_min(ns: list[int], rmse: list[Any], tol: float, allow_n1: bool = True) ->
 def _n_choice(data: dict[str, Any], tol: float) -> dict[str, Any]:
     ns = [int(n) for n in data["n_list"]]
     thetas = [float(t) for t in data["theta_rad"]]
-    dist, avg = data["rmse_Nm"]["distributed"], data["rmse_Nm"]["averaged"]
+    dist = data["rmse_Nm"]["distributed"]
+    avg_by = {k: v for k, v in data["rmse_Nm"].items() if k != "distributed"}
+    avg = avg_by.get("friction_preserving", next(iter(avg_by.values())))
     split = 0.5 * (min(thetas) + max(thetas))
     per_group = []
     ideal = data["rmse_ideal_N1_N10_Nm"]["distributed"]
@@ -96,12 +106,13 @@ def _n_choice(data: dict[str, Any], tol: float) -> dict[str, Any]:
         by_class[name] = max(vals) if vals else None
     valid = [g["n_min"] for g in per_group if g["n_min"] is not None]
     overall = max(valid) if valid else None
-    # pretension model per N: lower mean RMSE over the groups
+    # pretension model per N: lower mean RMSE over the groups (averaged = eq 25, friction-preserving reading)
     pre = []
     for ni, n in enumerate(ns):
         md = _mean([row[ni] for row in dist])
         ma = _mean([row[ni] for row in avg])
         pre.append({"n": n, "distributed_mean_Nm": md, "averaged_mean_Nm": ma,
+                    "averaged_by_reading_mean_Nm": {k: _mean([row[ni] for row in v]) for k, v in avg_by.items()},
                     "better": "distributed" if md <= ma else "averaged"})
     sigma = SensorNoise().torque_Nm
     excluded = [g for g in per_group if not g["n1_ok_ideal"]]
@@ -115,21 +126,42 @@ def _n_choice(data: dict[str, Any], tol: float) -> dict[str, Any]:
             + ", ".join(f"θ{g['group']} = {g['theta_rad']:.1f} rad → N = {g['n_min']}"
                         f" ({_fmt(g['rmse_at_n_min_Nm'])} vs {_fmt(g['rmse_at_n_max_Nm'])} Nm)" for g in per_group)
             + "."]
-    text.append(f"Routing dependence: bent routings (θ > {split:.1f} rad) need N = {by_class['bent']}, flat ones "
-                f"N = {by_class['flat']}; one N for every routing: **N = {overall}** (paper, Fig. 10 on its rig: "
+    text.append(f"Routing dependence: {_class_text(per_group, True, split)}; {_class_text(per_group, False, split)}; "
+                f"one N for every routing: **N = {overall}** (paper, Fig. 10 on its rig: "
                 "more than 4-5 segments, steeply bent groups worst at coarse N). "
                 f"At μ = {MU:g} the eq 23 field dips at most {100 * (1 - math.exp(-MU * max(thetas) / 2)):.0f} % "
                 f"below the boundary pretension (θ = {max(thetas):.1f} rad), so coarse N costs little here; "
                 f"the largest spread over N on one group is "
                 f"{_fmt(_largest_spread(dist))} Nm.")
     small, large = pre[0], pre[-1]
+
+    def readings(p: dict[str, Any]) -> str:
+        return ", ".join(f"{k.replace('_', ' ')} {_fmt(v)}" for k, v in p["averaged_by_reading_mean_Nm"].items())
+
     text.append(f"**Pretension model**: at N = {small['n']} the {small['better']} pretension predicts better "
                 f"(mean RMSE {_fmt(small['distributed_mean_Nm'])} Nm distributed vs "
-                f"{_fmt(small['averaged_mean_Nm'])} Nm averaged); at N = {large['n']} the {large['better']} "
-                f"({_fmt(large['distributed_mean_Nm'])} vs {_fmt(large['averaged_mean_Nm'])} Nm). "
+                f"{_fmt(small['averaged_mean_Nm'])} Nm averaged with eq 25 friction-preserving; eq 25 readings: "
+                f"{readings(small)} Nm); at N = {large['n']} the {large['better']} "
+                f"({_fmt(large['distributed_mean_Nm'])} vs {_fmt(large['averaged_mean_Nm'])} Nm; {readings(large)} Nm). "
                 + _pretension_advice(pre))
     return {"tolerance": tol, "split_theta_rad": split, "per_group": per_group, "bent_n": by_class["bent"],
             "flat_n": by_class["flat"], "overall_n": overall, "pretension_by_n": pre, "text": text}
+
+
+def _class_text(per_group: list[dict[str, Any]], bent: bool, split: float) -> str:
+    """Which N the bent (or flat) groups need, naming the groups that need more than the others."""
+    gs = [g for g in per_group if g["bent"] == bent and g["n_min"] is not None]
+    what = f"bent routings (θ > {split:.1f} rad)" if bent else f"flat routings (θ ≤ {split:.1f} rad)"
+    if not gs:
+        return f"{what}: none evaluated"
+    ns = sorted({g["n_min"] for g in gs})
+    if len(ns) == 1:
+        return f"{what} need N = {ns[0]}"
+    top = max(ns)
+    return (f"{what} need N = {ns[0]}-{top}: N = {top} only on "
+            + ", ".join(f"θ{g['group']}" for g in gs if g["n_min"] == top)
+            + ", N = " + "/".join(str(n) for n in ns[:-1]) + " on "
+            + ", ".join(f"θ{g['group']}" for g in gs if g["n_min"] != top))
 
 
 def _pretension_advice(pre: list[dict[str, Any]]) -> str:
@@ -142,7 +174,7 @@ def _pretension_advice(pre: list[dict[str, Any]]) -> str:
 
 
 def _reduced_vs_distributed(d11: dict[str, Any], d9: dict[str, Any], nchoice: dict[str, Any]) -> dict[str, Any]:
-    red = d11["rmse_Nm"]["stiff"]["reduced"]
+    red = d11["rmse_Nm"]["stiff"].get("reduced_friction_preserving", d11["rmse_Nm"]["stiff"].get("reduced"))
     rows = []
     for gi, j in enumerate(d11["groups"]):
         if j not in d9["groups"]:
@@ -154,12 +186,54 @@ def _reduced_vs_distributed(d11: dict[str, Any], d9: dict[str, Any], nchoice: di
     worst = max(ok, key=lambda r: r["reduced_Nm"] - r["distributed_Nm"]) if ok else None
     text = []
     if worst is not None:
-        text.append("**Reduced model** (the feedforward's τ̂_fc, identified once on θ5): RMSE "
+        text.append("**Reduced model** (the feedforward's τ̂_fc with eq 25 friction-preserving, identified once on "
+                    "θ5; mean over the seeds): RMSE "
                     + ", ".join(f"θ{r['group']} {_fmt(r['reduced_Nm'])} Nm (distributed N = {r['distributed_n']}: "
                                 f"{_fmt(r['distributed_Nm'])})" for r in ok)
                     + f"; the largest gap is {_fmt(worst['reduced_Nm'] - worst['distributed_Nm'])} Nm at "
                       f"θ{worst['group']} = {worst['theta_rad']:.1f} rad.")
     return {"per_group": rows, "text": text}
+
+
+def _eq25_choice(figures: dict[str, Any]) -> dict[str, Any]:
+    """Which eq 25 reading the run's data support (see the module doc), with the numbers."""
+    from capstan.controller.law.config import FeedforwardConfig
+
+    votes: dict[str, int] = {"friction_preserving": 0, "field_minimum": 0}
+    parts: list[str] = []
+    if "fig7" in figures:
+        bend = figures["fig7"]["data"].get("bending", [])
+        closer = [abs(b["height_Nm"] - b["two_tau_fc_friction_Nm"]) < abs(b["height_Nm"] - b["two_tau_fc_Nm"])
+                  for b in bend if "two_tau_fc_friction_Nm" in b]
+        if closer:
+            win = "friction_preserving" if 2 * sum(closer) > len(closer) else "field_minimum"
+            votes[win] += 1
+            parts.append(f"Fig. 7 loop heights (sliding friction of the plant without unmodelled effects) are closer to "
+                         f"2τ_fc with the friction-preserving reading on {sum(closer)} of {len(closer)} groups ("
+                         + ", ".join(f"θ = {b['theta_rad']:.1f}: {_fmt(b['height_Nm'])} vs "
+                                     f"{_fmt(b['two_tau_fc_friction_Nm'])} / {_fmt(b['two_tau_fc_Nm'])} Nm"
+                                     for b in bend) + ", measured vs friction-preserving / field minimum)")
+    if "fig9_10" in figures:
+        g = figures["fig9_10"]["data"]["rmse_Nm"]
+        if "friction_preserving" in g and "field_minimum" in g:
+            m = {k: _mean([x for r in g[k] for x in r]) for k in votes}
+            votes[min(m, key=m.get)] += 1
+            parts.append(f"Fig. 10 averaged-pretension mean RMSE over groups and N: {_fmt(m['friction_preserving'])} "
+                         f"(friction-preserving) vs {_fmt(m['field_minimum'])} Nm (field minimum)")
+    if "fig11" in figures:
+        r11 = figures["fig11"]["data"]["rmse_Nm"]
+        if all(f"reduced_{k}" in r11.get("stiff", {}) for k in votes):
+            m = {k: _mean([x for o in r11.values() for x in o[f"reduced_{k}"]]) for k in votes}
+            votes[min(m, key=m.get)] += 1
+            parts.append(f"Fig. 11 reduced-model mean RMSE over groups and both outputs: "
+                         f"{_fmt(m['friction_preserving'])} vs {_fmt(m['field_minimum'])} Nm")
+    choice = max(votes, key=lambda k: (votes[k], k == "friction_preserving"))
+    default = FeedforwardConfig().eq25_reading.name.lower()
+    text = [f"**Eq 25 reading**: the data favour **{choice.replace('_', ' ')}** ({votes[choice]} of "
+            f"{sum(votes.values())} tests): " + "; ".join(parts) + ". The feedforward's default "
+            f"(`controller.feedforward.eq25_reading`) is {default.replace('_', ' ')}"
+            + (", the same." if default == choice else " - **differs from this run's data**.")]
+    return {"votes": votes, "choice": choice, "feedforward_default": default, "text": text}
 
 
 def _placement(d13: dict[str, Any]) -> dict[str, Any]:
