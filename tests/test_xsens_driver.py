@@ -160,8 +160,14 @@ def test_counter_gaps_and_bad_frames_counted(pty: PtyPair) -> None:
         samples = _collect(imu, 0.1)
     imu.close()
     st = imu.stats
-    # 3 dropped counter values + 2 frames lost to bad checksums + 1 truncated
-    assert st.counter_gaps == 3 + 2 + 1
+    # 3 dropped counter values + 2 frames lost to bad checksums + 1 truncated; on a loaded host
+    # the simulated UART may also overrun (bytes the reader did not take in time are discarded,
+    # as a real UART's FIFO does): each frame hit by that is one more gap, never fewer
+    injected = 3 + 2 + 1
+    if sim.dropped_bytes == 0:
+        assert st.counter_gaps == injected
+    else:
+        assert injected < st.counter_gaps <= injected + sim.dropped_bytes // 20 + 2, (st, sim.dropped_bytes)
     assert st.bad_frames >= 3
     assert st.resyncs >= 3
     assert samples  # stream recovered after the garbage
