@@ -46,13 +46,19 @@ def _wait_for(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> l
 
 
 def _run_to_end(config: Path) -> tuple[subprocess.CompletedProcess, dict]:
-    """``capstan run --duration 1 --json``; rerun (at most 3 times) only if a host stall faulted it."""
+    """``capstan run --duration 1 --json``; rerun (at most 3 times) only if a host stall faulted it.
+
+    The returned ``stderr`` holds every attempt's log in order: a fault the first attempt
+    reset at start-up is not there to reset again in a rerun."""
+    logs: list[str] = []
     for _ in range(3):
         res = subprocess.run(_argv(config, "--duration", "1.0", "--json"), cwd=REPO, capture_output=True,
                              text=True, timeout=180)
+        logs.append(res.stderr)
         summary = json.loads(res.stdout) if res.stdout.strip() else {}
         if not (res.returncode == 3 and "host stall" in " ".join(summary.get("faults", []))):
             break
+    res.stderr = "".join(logs)
     return res, summary
 
 
