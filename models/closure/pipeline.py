@@ -31,6 +31,8 @@ from typing import Callable
 
 import numpy as np
 
+from capstan.models.closure.dynamic_closure import DynamicSetup, latency_spec
+from capstan.models.closure.dynamic_closure import setup as dyn_setup
 from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
 from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
@@ -111,6 +113,8 @@ class ClosureResult:
     test: Signals
     targets: dict[Target, TargetResult]
     trace: list[dict]
+    #: the dynamic baseline (None: the static regression predicted tau_out)
+    dynamic: DynamicSetup | None = None
 
 
 def _rmse(r: np.ndarray) -> float:
@@ -165,7 +169,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
     """Greedy closure of one target. Features are computed on the full-rate signals
     (time shifts stay exact) and fitted on the decimated rows."""
     d = aug.data
-    if aug.theta is None:      # elastic path: its linear fit
+    if aug.theta is None:      # a linear path (elastic, dynamic residual): its linear fit
         X0 = aug.design_train()
         aug.theta = scaled_lstsq(X0, d.y_Nm, np.zeros(X0.shape[1], bool))
     theta = aug.theta
@@ -173,7 +177,8 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
     yt = d.yt_Nm
     res = TargetResult(d.target, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t), float(np.max(np.abs(yt - pred_t))),
                        math.nan, math.nan)
-    if d.target == Target.TAU_OUT:
+    static = d.target == Target.TAU_OUT and d.X0 is None
+    if static:
         res.params_after = named_params(d.kind, theta, aug.alpha_s_rad, aug.eta_s_rad_s)
     remaining = list(specs)
     step = step0
@@ -193,7 +198,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
             Fte: np.ndarray | None = None
             ridge_F: np.ndarray | None = None
             if spec.realigns:
-                if d.target != Target.TAU_OUT or aug.realign is not None:
+                if not static or aug.realign is not None:
                     continue
                 realign = aug.best_lag(spec.grid, decimation_index(len(d.train), LAG_MAX_SAMPLES))
                 shape: dict = realign.as_shape()
@@ -215,7 +220,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
                              {n: float(c) for n, c in zip(spec.coef_names, coef)} if not is_empirical(spec) else {},
                              _rmse(r_after), float(np.max(np.abs(r_after))), imp, lo,
                              bool(lo > 0.0 and imp >= MATERIAL), spec, F, Fte)
-            if d.target == Target.TAU_OUT:
+            if static:
                 cand.baseline_params = named_params(d.kind, th, fit.alpha_s_rad, fit.eta_s_rad_s)
             if is_empirical(spec) and k:
                 knots = np.array([float(x) for x in str(shape["knots"]).split(",")])
@@ -263,13 +268,20 @@ def decimation_index(n: int, max_samples: int | None) -> np.ndarray:
 
 
 def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
-          progress: Progress | None = None, max_samples: int | None = MAX_SAMPLES) -> ClosureResult:
+          progress: Progress | None = None, max_samples: int | None = MAX_SAMPLES,
+          dynamic: bool = True) -> ClosureResult:
     """Run the closure (see module docstring).
 
-    Signals are derived at the full rate by the caller; the fits use at most
+    ``dynamic`` (default): the baseline is the reduced model simulated through every
+    sample of every run (:mod:`capstan.models.closure.dynamic_closure`), the effects are
+    fitted on its residual, and signals tied to the predicted channel are excluded;
+    otherwise the static friction-on-velocity regression of tau_out. The static
+    regression is fitted in both cases: it is the controller's feedforward map.
+
+    Signals are derived at the full rate by the caller; the effect fits use at most
     ``max_samples`` samples of each of train and test (every k-th sample).
 
-    :raises ModelError: if the baseline cannot be fitted.
+    :raises ModelError: if a baseline cannot be fitted.
     """
     idx_tr, idx_te = decimation_index(len(train), max_samples), decimation_index(len(test), max_samples)
     train_d, test_d = train.take(idx_tr), test.take(idx_te)
@@ -277,8 +289,14 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     ctx = FeatureContext.from_train(train_d, baseline)
     labels = test_blocks(test_d)
     emp = empirical_candidates(train)
-    specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp if s.target == Target.TAU_OUT and s.applicable(test)]}
-    if train.deflection_rad is not None and test.deflection_rad is not None:
+    ds = dyn_setup(train, test) if dynamic else None
+    main = [s for s in catalogue_for(train) + emp if s.target == Target.TAU_OUT and s.applicable(test)]
+    if ds is not None:
+        main = [s for s in main if ds.allowed(s)] + [latency_spec(ds, train, test)]
+    specs = {Target.TAU_OUT: main}
+    # the static elastic path (tau_in + tau_out linear in the angles) only beside the static
+    # baseline: the dynamic model carries the elastic state itself
+    if ds is None and train.deflection_rad is not None and test.deflection_rad is not None:
         specs[Target.ELASTIC] = [s for s in catalogue_for(train) + emp if s.target == Target.ELASTIC]
     total = sum(len(v) for v in specs.values()) * 2
     v95 = float(np.percentile(np.abs(train_d.dq_out_rad_s), 95))
@@ -287,17 +305,26 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     for t, sp in specs.items():
         X0: np.ndarray | None = None
         X0t: np.ndarray | None = None
-        if t == Target.TAU_OUT:
+        theta0: np.ndarray | None = None
+        if t == Target.TAU_OUT and ds is not None:
+            y = ds.y_train_Nm[idx_tr] - ds.pred_train_Nm[idx_tr]
+            yt = ds.y_test_Nm[idx_te] - ds.pred_test_Nm[idx_te]
+            X0, X0t = np.ones((len(idx_tr), 1)), np.ones((len(idx_te), 1))
+        elif t == Target.TAU_OUT:
             y, yt = train_d.tau_out_Nm, test_d.tau_out_Nm
+            theta0 = baseline.theta.copy()
         else:
             assert train_d.q_in_rad is not None and test_d.q_in_rad is not None
             y, yt = train_d.tau_in_Nm + train_d.tau_out_Nm, test_d.tau_in_Nm + test_d.tau_out_Nm
             X0 = np.column_stack([train_d.q_in_rad, train_d.q_out_rad, np.ones(len(train_d))])
             X0t = np.column_stack([test_d.q_in_rad, test_d.q_out_rad, np.ones(len(test_d))])
         aug = Augmented(TargetData(t, kind, train, test, idx_tr, idx_te, y, yt, X0, X0t, v95), ctx,
-                        baseline.alpha_s_rad, baseline.eta_s_rad_s,
-                        theta=baseline.theta.copy() if t == Target.TAU_OUT else None)
+                        baseline.alpha_s_rad, baseline.eta_s_rad_s, theta=theta0)
         targets[t], step = _close_target(aug, sp, labels, progress, step, total)
+    if ds is not None:      # back from the residual to the predicted channel
+        r = targets[Target.TAU_OUT]
+        base = ds.pred_test_Nm[idx_te]
+        r.y_test, r.pred_before, r.pred_after = r.y_test + base, r.pred_before + base, r.pred_after + base
     trace = []
     for c in targets[Target.TAU_OUT].candidates:
         if c.round == 1 and (is_empirical(c.spec) or c.effect == "sensor_latency"):
@@ -306,7 +333,7 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     trace.sort(key=lambda d: -d["explained"])
     if progress:
         progress(total, total, "done")
-    return ClosureResult(baseline, train_d, test_d, targets, trace)
+    return ClosureResult(baseline, train_d, test_d, targets, trace, ds)
 
 
 def split_single(sig: Signals, train_fraction: float = 0.7) -> tuple[Signals, Signals]:

@@ -107,6 +107,8 @@ class Signals:
     #: declared output environment per sample, columns [k_out Nm/rad, b_out Nm s/rad]
     #: (eq 22), or None when not every run declares one
     environment: np.ndarray | None = None
+    #: extra channels declared (import description ``tied_to``) as measuring a torque channel
+    tied_to: dict[str, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -119,7 +121,7 @@ class Signals:
                        self.q_out_rad[mask], self.dq_out_rad_s[mask], self.ddq_out_rad_s2[mask],
                        self.dwell_s[mask], self.rest_s[mask], self.slide_rad[mask], tk(self.q_in_rad),
                        tk(self.tension_N), {k: v[mask] for k, v in self.extras.items()}, list(self.names),
-                       self.v_rest_rad_s, self.ratio_q, tk(self.environment))
+                       self.v_rest_rad_s, self.ratio_q, tk(self.environment), dict(self.tied_to))
 
     @property
     def deflection_rad(self) -> np.ndarray | None:
@@ -225,7 +227,8 @@ def signals_from_tables(tables: list[MeasurementTable], v_rest_rad_s: float | No
     return Signals(cat["t"], run, cat["tau_in"], cat["tau_out"], cat["q"], v_all, cat["a"], dwell, rest, slide,
                    cat.get("q_in"), cat.get("T"), {e: cat["x:" + e] for e in sorted(extra_names)},
                    [tb.source for tb in tables], float(v_rest_rad_s), ratio_q,
-                   np.column_stack([cat["env_k"], cat["env_b"]]) if "env_k" in cat else None)
+                   np.column_stack([cat["env_k"], cat["env_b"]]) if "env_k" in cat else None,
+                   {str(k): str(v) for tb in tables for k, v in (tb.meta.get("tied_to") or {}).items()})
 
 
 def _declared_environment(tb: MeasurementTable) -> tuple[float, float] | None:
