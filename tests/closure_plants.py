@@ -39,13 +39,26 @@ def multisine(t_s: np.ndarray, peak_Nm: float, seed: int, f_hz: tuple[float, ...
     return u * gate
 
 
+class Injection:
+    """An effect injected into the distributed model's physics, block by block (50 ms).
+
+    ``mu(t, model, state) -> (2N,)`` node friction multipliers, ``u(t, model, state) -> gain``
+    of the drive torque reaching the cable, ``b_node`` per-node damping [N s/m],
+    ``creep(t) -> pretension change`` [N] since the start, ``post(cols)`` edits the
+    measured channels (sensor effects). ``state`` is a dict the functions may keep.
+    """
+
+    def __init__(self, mu=None, u=None, b_node=None, creep=None, post=None) -> None:
+        self.mu, self.u, self.b_node, self.creep, self.post = mu, u, b_node, creep, post
+
+
 def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 20.0, b_out: float = 2.0,
                     T0_N: float = 150.0, seed: int = 0, noise_Nm: float = 0.02, noise_dq: float = 1e-3,
-                    dt_s: float = 1e-3, peak_Nm: float = 6.0, mu_scale_fn=None, tau_ext_fn=None,
-                    declare_env: bool = True, source: str = "dist") -> tuple[MeasurementTable, dict]:
-    """One testbed run of the distributed model with the four fixture tensions as channels.
+                    dt_s: float = 1e-3, peak_Nm: float = 6.0, inject: Injection | None = None,
+                    declare_env: bool = True, source: str = "dist", block: int = 50) -> tuple[MeasurementTable, dict]:
+    """One testbed run of the distributed model with the four fixture tensions as extra
+    channels (T_up_in, T_up_out, T_lo_out, T_lo_in), noise on the measured channels.
 
-    ``mu_scale_fn(t, q_out) -> (2N,)`` rescales node friction per sample block (effects).
     Returns (table, truth) where truth holds the noise-free torques.
     """
     th = double_bend(n_nodes)
@@ -54,23 +67,32 @@ def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 
     model = DistributedModel(trans, BoundaryParams(k_out_Nm_rad=k_out, b_out_Nms_rad=b_out))
     t = np.arange(0.0, duration_s, dt_s)
     u = multisine(t, peak_Nm, seed)
-    if mu_scale_fn is None and tau_ext_fn is None:
+    inj = inject or Injection()
+    if inj.b_node is not None:
+        model.b_node_Ns_m[:] = inj.b_node
+    if inj.mu is None and inj.u is None and inj.creep is None:
         res = model.simulate(t, u, adaptive=True, rtol=1e-4)
-        tin, tout, qin, qout, dqo, fix = res.tau_in_Nm, res.tau_out_Nm, res.q_in_rad, res.q_out_rad, res.dq_out_rad_s, res.fixture_tensions_N
+        tin, tout, qin, qout, dqo, fix = (res.tau_in_Nm, res.tau_out_Nm, res.q_in_rad, res.q_out_rad,
+                                          res.dq_out_rad_s, res.fixture_tensions_N)
     else:
-        blk = 50
         parts = []
-        for a in range(0, len(t), blk):
-            b = min(len(t), a + blk + 1)
-            if mu_scale_fn is not None:
-                model.mu_scale[:] = mu_scale_fn(t[a], model.q_out_rad)
-            te = None if tau_ext_fn is None else tau_ext_fn(t[a:b])
-            r = model.simulate(t[a:b], u[a:b], te, adaptive=True, rtol=1e-4)
+        state: dict = {}
+        shifted = 0.0
+        for a in range(0, len(t) - 1, block):
+            b = min(len(t), a + block + 1)
+            if inj.mu is not None:
+                model.mu_scale[:] = inj.mu(t[a], model, state)
+            if inj.creep is not None:
+                d = inj.creep(t[a]) - shifted
+                model.shift_pretension(d)
+                shifted += d
+            g = 1.0 if inj.u is None else inj.u(t[a], model, state)
+            r = model.simulate(t[a:b], g * u[a:b], adaptive=True, rtol=1e-4)
             sl = slice(0 if a == 0 else 1, None)
-            parts.append((r.tau_in_Nm[sl], r.tau_out_Nm[sl], r.q_in_rad[sl], r.q_out_rad[sl], r.dq_out_rad_s[sl],
+            # the torque sensor sits on the drive side: with an eccentric pulley it reads the
+            # drive torque u, not the cable torque g u
+            parts.append((u[a:b][sl] if inj.u is not None else r.tau_in_Nm[sl], r.tau_out_Nm[sl], r.q_in_rad[sl], r.q_out_rad[sl], r.dq_out_rad_s[sl],
                           r.fixture_tensions_N[sl]))
-            if b == len(t):
-                break
         tin, tout, qin, qout, dqo = (np.concatenate([p[i] for p in parts]) for i in range(5))
         fix = np.concatenate([p[5] for p in parts])
     rng = np.random.default_rng(1000 + seed)
@@ -79,6 +101,8 @@ def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 
             "q_in": qin.copy(), "q_out": qout.copy(), "dq_out": dqo + noise_dq * rng.standard_normal(n)}
     for j, nm in enumerate(("T_up_in", "T_up_out", "T_lo_out", "T_lo_in")):
         cols[nm] = fix[:, j] + 0.5 * rng.standard_normal(n)
+    if inj.post is not None:
+        inj.post(cols)
     meta = {"r_in": R_M, "r_out": R_M}
     if declare_env:
         meta["environment"] = {"k_out": k_out, "b_out": b_out}

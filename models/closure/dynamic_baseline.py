@@ -36,6 +36,7 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import least_squares
 
+from capstan.models.closure.effects import shift_within_runs
 from capstan.models.closure.identification import fit_elastic, sandwich_cov
 from capstan.models.closure.signals import Signals, derivative
 from capstan.models.common.errors import ModelError
@@ -165,9 +166,25 @@ def _starts(sig: Signals) -> np.ndarray:
     return np.array([a for a, _ in sig.segments()] + [len(sig)], dtype=np.int64)
 
 
+@dataclass
+class Mods:
+    """Effects acting inside the simulation (:mod:`capstan.models.closure.dynamic_effects`).
+
+    :ivar cap_scale: per-sample multiplier of the friction capacity (clipped at 0), or None.
+    :ivar drive_Nm: per-sample torque added to the torque balance's drive [Nm], or None.
+    :ivar c2_Nms2_rad2: drag ``c2 v |v|`` at speed.
+    :ivar lag_s: the target measured this late (negative: the driving channels late) [s].
+    """
+
+    cap_scale: np.ndarray | None = None
+    drive_Nm: np.ndarray | None = None
+    c2_Nms2_rad2: float = 0.0
+    lag_s: float = 0.0
+
+
 def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
-             declared_env: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """Simulate ``sig`` with parameter vector ``p``: (target, other torque or None)."""
+             declared_env: bool, mods: Mods | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Simulate ``sig`` with parameter vector ``p`` (and effects ``mods``): (target, other torque or None)."""
     n = len(sig)
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
@@ -199,20 +216,30 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
         a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
         x0 = a[starts[:-1]] / (2.0 * Kh)
         c0, kx = 0.0, 2.0 * Kh
+    mods = mods or Mods()
+    if mods.drive_Nm is not None:
+        a = a + mods.drive_Nm
+    cap = np.empty(0) if mods.cap_scale is None else np.ascontiguousarray(np.maximum(mods.cap_scale, 0.0))
     nr = starts.shape[0] - 1
     c0_r = np.broadcast_to(np.asarray(c0, dtype=np.float64), (nr,)).copy()
     kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
     done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
-                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr)
+                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
+                         float(mods.c2_Nms2_rad2))
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
     if form == DrivingForm.OUTPUT_HELD:
-        return K * (sig.q_in_rad - x) + c_in, None
-    if form == DrivingForm.TESTBED:
-        return kout * x + bout * v + c_out, None
-    assert sig.q_in_rad is not None
-    return rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in
+        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + c_in, None)
+    elif form == DrivingForm.TESTBED:
+        out = (kout * x + bout * v + c_out, None)
+    else:
+        assert sig.q_in_rad is not None
+        out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+    if mods.lag_s != 0.0:
+        out = (shift_within_runs(out[0], sig, mods.lag_s),
+               None if out[1] is None else shift_within_runs(out[1], sig, mods.lag_s))
+    return out
 
 
 def input_velocity(sig: Signals) -> np.ndarray:
@@ -343,6 +370,8 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
             fit.at_bound.append(nm)
     fit.implausible = plausibility(params, y, v95)
     fit.undetermined = [nm for i, nm in enumerate(names) if free[i] and stderr[nm] > abs(p[i])]
+    if params["zeta_s"] - 1.0 <= 1e-3 and "eta_s_rad_s" not in fit.undetermined:
+        fit.undetermined.append("eta_s_rad_s")     # no stiction peak: its width means nothing
     fit.warnings = power_warnings(sig, form)
     return fit
 
@@ -370,7 +399,7 @@ def plausibility(params: dict[str, float], target_Nm: np.ndarray, v95_rad_s: flo
     if span > 0.0 and tfc > span:
         out["tau_fc_Nm"] = f"{tfc:.3g} Nm exceeds the whole span of the target ({span:.3g} Nm)"
     eta = params.get("eta_s_rad_s", v95_rad_s)
-    if eta > 10.0 * v95_rad_s:
+    if eta > 10.0 * v95_rad_s and zs - 1.0 > 1e-3:    # (with zeta_s = 1, eta_s has no effect)
         out["eta_s_rad_s"] = f"{eta:.3g} rad/s is beyond 10x the run's 95th-percentile speed ({v95_rad_s:.3g} rad/s)"
     bv = params.get("b_vis_Nms_rad", 0.0)
     if span > 0.0 and bv * v95_rad_s > span:

@@ -31,77 +31,23 @@ from typing import Callable
 
 import numpy as np
 
-from capstan.models.closure.dynamic_closure import DynamicSetup, latency_spec
+from capstan.models.closure.dynamic_closure import DynamicSetup, close_in_model
 from capstan.models.closure.dynamic_closure import setup as dyn_setup
 from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
 from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
 from capstan.models.closure.residual_trace import describe_curve, empirical_candidates, is_empirical
+from capstan.models.closure.scoring import (BLOCK_S, MATERIAL, N_BOOT, Candidate, TargetResult, _rmse,  # noqa: F401
+                                            block_bootstrap, test_blocks)
 from capstan.models.closure.signals import Signals
 
-MATERIAL = 0.05
 PREFER_CATALOGUE = 0.7
-BLOCK_S = 2.0
-N_BOOT = 400
 MAX_ROUNDS = 4
 MAX_SAMPLES = 20000
 #: at most this many consecutive training samples for the latency search
 LAG_MAX_SAMPLES = 100000
 
 Progress = Callable[[int, int, str], None]
-
-
-@dataclass
-class Candidate:
-    """One candidate tried in one round (see the module docstring for the scores)."""
-
-    effect: str
-    depends_on: list[str]
-    target: Target
-    round: int
-    shape: dict
-    params: dict[str, float]
-    rmse_Nm: float
-    max_err_Nm: float
-    improvement: float
-    ci_low: float
-    significant: bool
-    spec: EffectSpec | None = None
-    F_train: np.ndarray | None = None
-    F_test: np.ndarray | None = None
-    description: dict | None = None
-    #: the augmented model's baseline parameters refitted with this candidate (friction path)
-    baseline_params: dict[str, float] | None = None
-
-    def summary(self) -> dict:
-        """JSON-able summary."""
-        d = {"effect": self.effect, "depends_on": list(self.depends_on), "target": self.target.name.lower(),
-             "round": self.round, "rmse_Nm": self.rmse_Nm, "max_err_Nm": self.max_err_Nm,
-             "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
-        if self.description:
-            d["description"] = self.description["text"]
-        return d
-
-
-@dataclass
-class TargetResult:
-    """Closure of one target (the friction path tau_out, or the elastic path)."""
-
-    target: Target
-    y_test: np.ndarray
-    pred_before: np.ndarray
-    pred_after: np.ndarray
-    rmse_before_Nm: float
-    max_before_Nm: float
-    rmse_after_Nm: float
-    max_after_Nm: float
-    candidates: list[Candidate] = field(default_factory=list)
-    selected: list[Candidate] = field(default_factory=list)
-    theta: np.ndarray | None = None
-    #: friction path: the baseline's parameters as refitted in the final augmented model
-    #: (linear ones, alpha_s_rad, eta_s_rad_s, zeta_s); the selected effects' coefficients
-    #: belong with these, not with the baseline fitted alone
-    params_after: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -115,38 +61,6 @@ class ClosureResult:
     trace: list[dict]
     #: the dynamic baseline (None: the static regression predicted tau_out)
     dynamic: DynamicSetup | None = None
-
-
-def _rmse(r: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
-
-
-def test_blocks(sig: Signals, block_s: float = BLOCK_S) -> np.ndarray:
-    """Block label per held-out sample: contiguous ~block_s pieces inside each run (>= 8 blocks)."""
-    labels = np.empty(len(sig), dtype=np.int64)
-    dt = float(np.median(np.diff(sig.t_s))) if len(sig) > 1 else 1e-3
-    per = max(50, int(block_s / max(dt, 1e-6)))
-    per = min(per, max(50, len(sig) // 8))
-    k = 0
-    for a, b in sig.segments():
-        m = b - a
-        nb = max(1, int(round(m / per)))
-        labels[a:b] = k + np.minimum((np.arange(m) * nb) // m, nb - 1)
-        k += nb
-    return labels
-
-
-def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarray,
-                    n_boot: int = N_BOOT, seed: int = 12345) -> tuple[float, float]:
-    """(point improvement, one-sided 95 % lower bound) of the relative RMSE reduction."""
-    nb = int(labels.max()) + 1
-    sb = np.bincount(labels, r_before ** 2, nb)
-    sa = np.bincount(labels, r_after ** 2, nb)
-    point = 1.0 - math.sqrt(sa.sum() / max(sb.sum(), 1e-300))
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, nb, size=(n_boot, nb))
-    boots = 1.0 - np.sqrt(sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
-    return point, float(np.quantile(boots, 0.05))
 
 
 def _best_shape(spec: EffectSpec, aug: Augmented, Q: np.ndarray,
@@ -290,10 +204,8 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     labels = test_blocks(test_d)
     emp = empirical_candidates(train)
     ds = dyn_setup(train, test) if dynamic else None
-    main = [s for s in catalogue_for(train) + emp if s.target == Target.TAU_OUT and s.applicable(test)]
-    if ds is not None:
-        main = [s for s in main if ds.allowed(s)] + [latency_spec(ds, train, test)]
-    specs = {Target.TAU_OUT: main}
+    specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp
+                              if s.target == Target.TAU_OUT and s.applicable(test)] if ds is None else []}
     # the static elastic path (tau_in + tau_out linear in the angles) only beside the static
     # baseline: the dynamic model carries the elastic state itself
     if ds is None and train.deflection_rad is not None and test.deflection_rad is not None:
@@ -306,11 +218,13 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
         X0: np.ndarray | None = None
         X0t: np.ndarray | None = None
         theta0: np.ndarray | None = None
-        if t == Target.TAU_OUT and ds is not None:
-            y = ds.y_train_Nm[idx_tr] - ds.pred_train_Nm[idx_tr]
-            yt = ds.y_test_Nm[idx_te] - ds.pred_test_Nm[idx_te]
-            X0, X0t = np.ones((len(idx_tr), 1)), np.ones((len(idx_te), 1))
-        elif t == Target.TAU_OUT:
+        if t == Target.TAU_OUT and ds is not None:     # effects inside the simulation
+            r, step = close_in_model(ds, train, test, progress, step, total)
+            # scored on every held-out sample; the arrays kept for the plots on the rows of test_d
+            r.y_test, r.pred_before, r.pred_after = r.y_test[idx_te], r.pred_before[idx_te], r.pred_after[idx_te]
+            targets[t] = r
+            continue
+        if t == Target.TAU_OUT:
             y, yt = train_d.tau_out_Nm, test_d.tau_out_Nm
             theta0 = baseline.theta.copy()
         else:
@@ -321,13 +235,9 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
         aug = Augmented(TargetData(t, kind, train, test, idx_tr, idx_te, y, yt, X0, X0t, v95), ctx,
                         baseline.alpha_s_rad, baseline.eta_s_rad_s, theta=theta0)
         targets[t], step = _close_target(aug, sp, labels, progress, step, total)
-    if ds is not None:      # back from the residual to the predicted channel
-        r = targets[Target.TAU_OUT]
-        base = ds.pred_test_Nm[idx_te]
-        r.y_test, r.pred_before, r.pred_after = r.y_test + base, r.pred_before + base, r.pred_after + base
-    trace = []
-    for c in targets[Target.TAU_OUT].candidates:
-        if c.round == 1 and (is_empirical(c.spec) or c.effect == "sensor_latency"):
+    trace = list(targets[Target.TAU_OUT].trace)
+    for c in targets[Target.TAU_OUT].candidates if ds is None else []:
+        if c.round == 1 and (c.effect.startswith("empirical:") or c.effect == "sensor_latency"):
             trace.append({"signal": c.depends_on[0], "explained": max(0.0, 1.0 - (1.0 - c.improvement) ** 2),
                           "improvement": c.improvement, "significant": c.significant})
     trace.sort(key=lambda d: -d["explained"])

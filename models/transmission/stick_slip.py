@@ -61,9 +61,10 @@ def friction_update(f_Nm: float, v_rad_s: float, dt_s: float, k_pre_Nm_rad: floa
 @njit(cache=True)
 def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: float, dt_s: float,
                   k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
-                  b_vis_Nms_rad: float) -> float:
+                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0) -> float:
     """Velocity of one backward-Euler step [rad/s]: the root of
-    ``c v + f_new(v) + b_vis v = rhs`` (``f_new`` by :func:`friction_update` from ``f``).
+    ``c v + f_new(v) + b_vis v + c2 v |v| = rhs`` (``f_new`` by :func:`friction_update` from
+    ``f``; ``c2 >= 0`` a drag growing with speed).
 
     Bracketed by ``(rhs -/+ M) / (c + b_vis)`` with ``M = max(|f|, zeta_s tau_fc)``; Newton
     steps (derivative without the Stribeck slope) safeguarded by bisection, started at the
@@ -84,14 +85,14 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
         F = capacity_Nm(v, tau_fc_Nm, zeta_s, eta_s_rad_s)
         den = 1.0 + kd * abs(v) / F if F > 0.0 else math.inf
         fn = (f_Nm + kd * v) / den if F > 0.0 else 0.0
-        g = ct * v + fn - rhs_Nm
-        if abs(g) <= 1e-12 * scale:
+        g = ct * v + c2_Nms2_rad2 * v * abs(v) + fn - rhs_Nm
+        if abs(g) <= 1e-10 * scale:
             return v
         if g < 0.0:
             lo = v
         else:
             hi = v
-        dg = ct
+        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v)
         if F > 0.0:
             sg = 1.0 if v >= 0.0 else -1.0
             dg += (kd * den - (f_Nm + kd * v) * kd * sg / F) / (den * den)
@@ -107,7 +108,8 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
 @njit(cache=True)
 def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad: np.ndarray, c0_Nms_rad: np.ndarray,
                   kx_Nm_rad: np.ndarray, k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
-                  b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray) -> int:
+                  b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray,
+                  cap_scale: np.ndarray, c2_Nms2_rad2: float = 0.0) -> int:
     """Integrate the unit through concatenated runs (allocation-free).
 
     :param t_s: sample times [s] (increasing inside each run).
@@ -116,9 +118,13 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
     :param x0_rad: state at the first sample of each run [rad] (at rest there, no friction).
     :param c0_Nms_rad: damping ``c0`` of each run [Nm s/rad].
     :param kx_Nm_rad: stiffness ``kx`` of each run [Nm/rad].
+    :param cap_scale: per-sample multiplier of the capacity ``tau_fc`` (effects acting on the
+        friction: dwell, position, time, load), > 0; an empty array means 1 everywhere.
+    :param c2_Nms2_rad2: drag ``c2 v |v|`` at speed [Nm s^2/rad^2].
     :returns: the number of samples integrated (``len(t_s)`` unless a step failed: NaN
         velocity, non-increasing time).
     """
+    has_scale = cap_scale.shape[0] == t_s.shape[0]
     for k in range(starts.shape[0] - 1):
         a0 = starts[k]
         b0 = starts[k + 1]
@@ -137,11 +143,12 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
             if not dt > 0.0:
                 return i
             c = c0 + kx * dt
-            v = step_velocity(a_Nm[i] - kx * x, c, v, f, dt, k_pre_Nm_rad, tau_fc_Nm, zeta_s, eta_s_rad_s,
-                              b_vis_Nms_rad)
+            tfc = tau_fc_Nm * cap_scale[i] if has_scale else tau_fc_Nm
+            v = step_velocity(a_Nm[i] - kx * x, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
+                              b_vis_Nms_rad, c2_Nms2_rad2)
             if not math.isfinite(v):
                 return i
-            f = friction_update(f, v, dt, k_pre_Nm_rad, tau_fc_Nm, zeta_s, eta_s_rad_s)
+            f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s)
             x = x + dt * v
             out_x_rad[i] = x
             out_v_rad_s[i] = v

@@ -63,7 +63,7 @@ def _dynamic_keys(res: ClosureResult, out: dict[str, Any]) -> None:
     main = res.targets[Target.TAU_OUT]
     b, f = out["baseline"], out["final"]
     ds = res.dynamic
-    std = float(np.std(main.y_test))
+    std = float(np.std(ds.y_test_Nm if ds is not None else main.y_test))
     b["target_std_Nm"] = std
     b["skill"] = skill(main.rmse_before_Nm, std)
     f["skill"] = skill(main.rmse_after_Nm, std)
