@@ -14,8 +14,10 @@ empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): pie
                                      curves over knots at the training quantiles of x
 =====================  ============  ===================================================
 
-A shape (time constants, lag) is chosen on its grid with the baseline held, then the
-effect's coefficients and the baseline's free parameters are refitted together.
+A shape (time constants, lag) is chosen on its grid with the baseline held (coefficients
+by Powell's derivative-free search), and the candidate is scored so; the selected effect
+is then refitted together with the baseline's free parameters (bounded least squares from
+there, kept where it lowers the training error).
 Scores are held-out (every sample of the held-out runs), by the caller's bootstrap.
 """
 
@@ -26,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize
 
 from capstan.models.closure.dynamic_baseline import DynamicFit, Mods, _initial, _predict, _target, _velocity_scale
 from capstan.models.closure.residual_trace import describe_curve, hat_basis, knots_for
@@ -34,10 +36,10 @@ from capstan.models.closure.signals import Signals
 
 #: knots of an empirical in-model curve
 N_KNOTS = 5
-#: least-squares evaluations of a joint refit
+#: least-squares evaluations of a joint refit (per coefficient + 1 for a held one)
 MAX_NFEV = 30
-#: evaluations of a shape-search fit (the baseline held)
-SHAPE_NFEV = 12
+#: evaluations per coefficient (+1) of a shape-search fit (the baseline held)
+SHAPE_NFEV = 8
 #: lag grid [ms]
 LAGS_MS = (2, 5, 8, 12, 18, 25, 35, 50)
 
@@ -210,6 +212,15 @@ class InModelCloser:
 
         if x0.size == 0:
             return model(x0)
+        if not base_free:
+            # a few coefficients of an effect on a held baseline: derivative-free (Powell). The
+            # output error of a stick-slip simulation is piecewise smooth with steep pieces
+            # (a changed breakaway moves the held state for the rest of the run), where a
+            # finite-difference trust region stalls at its start
+            opt = minimize(lambda x: float(np.sum(resid(x) ** 2)), x0, method="Powell",
+                           bounds=list(zip(lo, hi)), options={"maxfev": max_nfev * (k + 1), "xtol": 1e-3,
+                                                              "ftol": 1e-4})
+            return model(opt.x)
         scale = np.concatenate([np.maximum(np.abs(pf0), 1e-6) if base_free else [], np.full(k, 0.1)])
         res = least_squares(resid, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-2, max_nfev=max_nfev)
         joint = model(res.x)

@@ -9,7 +9,10 @@ candidates; :func:`excluded_signals` lists them with the reason:
 * declared: the import description marks the channel ``tied_to: tau_in | tau_out``;
 * the target itself under another name (``load`` is tau_in);
 * measured: on the training runs the target is a linear function of the signal
-  (R^2 >= ``TIE_R2``) or of a pair of signals (R^2 >= ``PAIR_R2``).
+  (R^2 >= ``TIE_R2``) or of a pair of signals (R^2 >= ``PAIR_R2``);
+* the same test against a driving torque channel: a second sensor of what drives the
+  simulation (the input tensions beside tau_in) would take the credit for that
+  channel's own error (a load-cell gain error is a property of ``load``).
 
 The states of the motion (velocity, acceleration, position, dwell, time) and the
 driving signals of the simulation are mechanisms by construction and never tested.
@@ -52,27 +55,29 @@ def excluded_signals(sig: Signals, target: str, driving: tuple[str, ...] = ()) -
             out[name] = f"declared in the import description as tied to {tied}"
     if target == "tau_in" and "load" in avail:
         out["load"] = "load is tau_in, the predicted channel"
-    y_full = sig.tau_in_Nm if target == "tau_in" else sig.tau_out_Nm
-    step = max(1, len(sig) // MAX_ROWS)
-    y = y_full[::step]
     protected = MOTION | {_DRIVING_SIGNAL.get(d, d) for d in driving}
-    test = []
-    for name in avail:
-        if name in out or name in protected:
-            continue
-        x = sig.signal(name)
-        if x is None:
-            continue
-        xs = x[::step]
-        r2 = _r2(xs[:, None], y)
-        if r2 >= TIE_R2:
-            out[name] = f"tied to {target}: a linear function of it explains {100 * r2:.1f} % of {target}'s variance"
-        else:
-            test.append((name, xs))
-    for (n1, x1), (n2, x2) in itertools.combinations(test, 2):
-        r2 = _r2(np.column_stack([x1, x2]), y)
-        if r2 >= PAIR_R2:
-            for a, b in ((n1, n2), (n2, n1)):
-                out.setdefault(a, f"tied to {target} together with {b}: a linear function of the pair explains "
-                                  f"{100 * r2:.2f} % of {target}'s variance")
+    ties = [(target, f"tied to {target}")]
+    ties += [(d, f"a second sensor of the driving channel {d}") for d in driving if d in ("tau_in", "tau_out") and d != target]
+    step = max(1, len(sig) // MAX_ROWS)
+    for channel, why in ties:
+        y = (sig.tau_in_Nm if channel == "tau_in" else sig.tau_out_Nm)[::step]
+        test = []
+        for name in avail:
+            if name in out or name in protected:
+                continue
+            x = sig.signal(name)
+            if x is None:
+                continue
+            xs = x[::step]
+            r2 = _r2(xs[:, None], y)
+            if r2 >= TIE_R2:
+                out[name] = f"{why}: a linear function of it explains {100 * r2:.1f} % of {channel}'s variance"
+            else:
+                test.append((name, xs))
+        for (n1, x1), (n2, x2) in itertools.combinations(test, 2):
+            r2 = _r2(np.column_stack([x1, x2]), y)
+            if r2 >= PAIR_R2:
+                for a, b in ((n1, n2), (n2, n1)):
+                    out.setdefault(a, f"{why} together with {b}: a linear function of the pair explains "
+                                      f"{100 * r2:.2f} % of {channel}'s variance")
     return out
