@@ -61,8 +61,14 @@ def setup(train: Signals, test: Signals) -> DynamicSetup:
 #: a catalogue candidate is preferred when it achieves this share of the best empirical one
 PREFER_CATALOGUE = 0.7
 MAX_ROUNDS = 3
+#: an empirical in-model curve (2 x 5 coefficients, a description, not a mechanism) must cut
+#: the held-out RMSE by this much; a catalogued form (1-2 coefficients) by MATERIAL (5 %)
+MATERIAL_EMPIRICAL = 0.10
+#: family-wise one-sided level of a round's significance tests, and bootstrap resamples
+ALPHA = 0.05
+N_BOOT_DYN = 2000
 #: empirical in-model curves for this many signals, the ones the residual trace ranks first
-N_EMPIRICAL = 3
+N_EMPIRICAL = 6
 #: knots of the trace's curves
 TRACE_KNOTS = 12
 
@@ -129,7 +135,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
     refs = Refs(float(np.mean(train.q_out_rad)), max(0.5 * float(np.ptp(train.q_out_rad)), 1e-6),
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
     trace = residual_trace(ds, train, test)
-    emp = [d["signal"] for d in trace if d["improvement"] > 0.0][:N_EMPIRICAL]
+    emp = [d["signal"] for d in trace][:N_EMPIRICAL]
     remaining = catalogue(train, refs, ds.excluded, emp)
     labels = test_blocks(test)
     current = JointFit(np.array(list(fit.params.values())))
@@ -151,12 +157,14 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             jf = closer.refit(current, eff, shape, base_free=False)
             pt = closer.predict(jf)
             r_after = yt - pt
-            imp, lo = block_bootstrap(r_before, r_after, labels)
+            # Bonferroni over the round's candidates: with every signal tried as an empirical
+            # curve, 5 % per candidate would let one of them through on clean data by chance
+            imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN, alpha=ALPHA / len(remaining))
             coef = jf.effects[-1][2]
             tau_fc = float(jf.base[names.index("tau_fc_Nm")])
             cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
                              _named(eff, shape, coef, tau_fc, refs), _rmse(r_after), float(np.max(np.abs(r_after))),
-                             imp, lo, bool(lo > 0.0 and imp >= MATERIAL))
+                             imp, lo, bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
             cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)

@@ -98,8 +98,8 @@ def test_blocks(sig: Signals, block_s: float = BLOCK_S) -> np.ndarray:
 
 
 def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarray,
-                    n_boot: int = N_BOOT, seed: int = 12345) -> tuple[float, float]:
-    """(point improvement, one-sided 95 % lower bound) of the relative RMSE reduction."""
+                    n_boot: int = N_BOOT, seed: int = 12345, alpha: float = 0.05) -> tuple[float, float]:
+    """(point improvement, one-sided ``1 - alpha`` lower bound) of the relative RMSE reduction."""
     nb = int(labels.max()) + 1
     sb = np.bincount(labels, r_before ** 2, nb)
     sa = np.bincount(labels, r_after ** 2, nb)
@@ -107,4 +107,4 @@ def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarra
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, nb, size=(n_boot, nb))
     boots = 1.0 - np.sqrt(sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
-    return point, float(np.quantile(boots, 0.05))
+    return point, float(np.quantile(boots, alpha))
