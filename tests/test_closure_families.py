@@ -70,9 +70,13 @@ SIGNAL = {
 
 #: measured shortfalls (see the module docstring)
 SHORT: dict[str, str] = {
-    "direction_asymmetry": "measured 2026-11-26: baseline 0.200 Nm held-out, nothing selected; no catalogued "
-                           "form is direction-dependent, and the in-model empirical curves only go to the three "
-                           "signals the additive residual trace ranks first",
+    "eccentric_input": "measured 2026-11-26: selected pretension_relaxation (time) first, then position_friction "
+                       "and load_friction (baseline 0.080 Nm held-out). The position form is the right mechanism "
+                       "but a run-time capacity change explains as much on 15 s runs",
+    "late_tau_out": "measured 2026-11-26: traced to sensor_latency first (right), held-out 0.0473 -> 0.0346 Nm "
+                    "(-26.7 %, bar 30 %); the clean floor of these runs is 0.025-0.028 Nm",
+    "direction_asymmetry": "measured 2026-11-26: baseline 0.200 Nm held-out, not traced to velocity with a 30 % "
+                           "cut; no catalogued form is direction-dependent",
 }
 
 
