@@ -121,8 +121,9 @@ def argmin_int(f: Callable[[int], float], lo: int, hi: int) -> int:
 @dataclass
 class TargetData:
     """One target's data: the full-rate runs (time shifts stay exact), the decimated rows
-    the fits use, the target on those rows, and for the elastic path its fixed linear
-    design [q_in, q_out, 1] (None for the output torque)."""
+    the fits use, the target on those rows, and a fixed linear design where the model is
+    linear (the elastic path's [q_in, q_out, 1]; the dynamic residual's [1]), else None
+    (the static friction path: its shape is refitted)."""
 
     target: Target
     kind: ModelKind
@@ -199,7 +200,7 @@ class Augmented:
                 F: np.ndarray | None = None) -> np.ndarray:
         d = self.data
         ex = self.extra(realign, F, test)
-        if d.target == Target.ELASTIC:
+        if d.X0 is not None:      # a fixed linear design (elastic path, dynamic residual)
             X0 = d.X0t if test else d.X0
             assert X0 is not None
             return np.hstack([X0, ex])
@@ -222,7 +223,7 @@ class Augmented:
         """
         d = self.data
         rid = self.ridge_cols(ridge_F)
-        if d.target == Target.ELASTIC:
+        if d.X0 is not None:
             X = self._design(None, False, math.nan, math.nan, F_tr)
             th = scaled_lstsq(X, d.y_Nm, np.concatenate([np.zeros(X.shape[1] - rid.size, bool), rid]))
             return AugmentedFit(th, self._design(None, True, math.nan, math.nan, F_te) @ th, math.nan, math.nan)

@@ -31,75 +31,23 @@ from typing import Callable
 
 import numpy as np
 
+from capstan.models.closure.dynamic_closure import DynamicSetup, close_in_model
+from capstan.models.closure.dynamic_closure import setup as dyn_setup
 from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
 from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
 from capstan.models.closure.residual_trace import describe_curve, empirical_candidates, is_empirical
+from capstan.models.closure.scoring import (BLOCK_S, MATERIAL, N_BOOT, Candidate, TargetResult, _rmse,  # noqa: F401
+                                            block_bootstrap, test_blocks)
 from capstan.models.closure.signals import Signals
 
-MATERIAL = 0.05
 PREFER_CATALOGUE = 0.7
-BLOCK_S = 2.0
-N_BOOT = 400
 MAX_ROUNDS = 4
 MAX_SAMPLES = 20000
 #: at most this many consecutive training samples for the latency search
 LAG_MAX_SAMPLES = 100000
 
 Progress = Callable[[int, int, str], None]
-
-
-@dataclass
-class Candidate:
-    """One candidate tried in one round (see the module docstring for the scores)."""
-
-    effect: str
-    depends_on: list[str]
-    target: Target
-    round: int
-    shape: dict
-    params: dict[str, float]
-    rmse_Nm: float
-    max_err_Nm: float
-    improvement: float
-    ci_low: float
-    significant: bool
-    spec: EffectSpec | None = None
-    F_train: np.ndarray | None = None
-    F_test: np.ndarray | None = None
-    description: dict | None = None
-    #: the augmented model's baseline parameters refitted with this candidate (friction path)
-    baseline_params: dict[str, float] | None = None
-
-    def summary(self) -> dict:
-        """JSON-able summary."""
-        d = {"effect": self.effect, "depends_on": list(self.depends_on), "target": self.target.name.lower(),
-             "round": self.round, "rmse_Nm": self.rmse_Nm, "max_err_Nm": self.max_err_Nm,
-             "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
-        if self.description:
-            d["description"] = self.description["text"]
-        return d
-
-
-@dataclass
-class TargetResult:
-    """Closure of one target (the friction path tau_out, or the elastic path)."""
-
-    target: Target
-    y_test: np.ndarray
-    pred_before: np.ndarray
-    pred_after: np.ndarray
-    rmse_before_Nm: float
-    max_before_Nm: float
-    rmse_after_Nm: float
-    max_after_Nm: float
-    candidates: list[Candidate] = field(default_factory=list)
-    selected: list[Candidate] = field(default_factory=list)
-    theta: np.ndarray | None = None
-    #: friction path: the baseline's parameters as refitted in the final augmented model
-    #: (linear ones, alpha_s_rad, eta_s_rad_s, zeta_s); the selected effects' coefficients
-    #: belong with these, not with the baseline fitted alone
-    params_after: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -111,38 +59,8 @@ class ClosureResult:
     test: Signals
     targets: dict[Target, TargetResult]
     trace: list[dict]
-
-
-def _rmse(r: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
-
-
-def test_blocks(sig: Signals, block_s: float = BLOCK_S) -> np.ndarray:
-    """Block label per held-out sample: contiguous ~block_s pieces inside each run (>= 8 blocks)."""
-    labels = np.empty(len(sig), dtype=np.int64)
-    dt = float(np.median(np.diff(sig.t_s))) if len(sig) > 1 else 1e-3
-    per = max(50, int(block_s / max(dt, 1e-6)))
-    per = min(per, max(50, len(sig) // 8))
-    k = 0
-    for a, b in sig.segments():
-        m = b - a
-        nb = max(1, int(round(m / per)))
-        labels[a:b] = k + np.minimum((np.arange(m) * nb) // m, nb - 1)
-        k += nb
-    return labels
-
-
-def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarray,
-                    n_boot: int = N_BOOT, seed: int = 12345) -> tuple[float, float]:
-    """(point improvement, one-sided 95 % lower bound) of the relative RMSE reduction."""
-    nb = int(labels.max()) + 1
-    sb = np.bincount(labels, r_before ** 2, nb)
-    sa = np.bincount(labels, r_after ** 2, nb)
-    point = 1.0 - math.sqrt(sa.sum() / max(sb.sum(), 1e-300))
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, nb, size=(n_boot, nb))
-    boots = 1.0 - np.sqrt(sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
-    return point, float(np.quantile(boots, 0.05))
+    #: the dynamic baseline (None: the static regression predicted tau_out)
+    dynamic: DynamicSetup | None = None
 
 
 def _best_shape(spec: EffectSpec, aug: Augmented, Q: np.ndarray,
@@ -165,7 +83,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
     """Greedy closure of one target. Features are computed on the full-rate signals
     (time shifts stay exact) and fitted on the decimated rows."""
     d = aug.data
-    if aug.theta is None:      # elastic path: its linear fit
+    if aug.theta is None:      # a linear path (elastic, dynamic residual): its linear fit
         X0 = aug.design_train()
         aug.theta = scaled_lstsq(X0, d.y_Nm, np.zeros(X0.shape[1], bool))
     theta = aug.theta
@@ -173,7 +91,8 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
     yt = d.yt_Nm
     res = TargetResult(d.target, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t), float(np.max(np.abs(yt - pred_t))),
                        math.nan, math.nan)
-    if d.target == Target.TAU_OUT:
+    static = d.target == Target.TAU_OUT and d.X0 is None
+    if static:
         res.params_after = named_params(d.kind, theta, aug.alpha_s_rad, aug.eta_s_rad_s)
     remaining = list(specs)
     step = step0
@@ -193,7 +112,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
             Fte: np.ndarray | None = None
             ridge_F: np.ndarray | None = None
             if spec.realigns:
-                if d.target != Target.TAU_OUT or aug.realign is not None:
+                if not static or aug.realign is not None:
                     continue
                 realign = aug.best_lag(spec.grid, decimation_index(len(d.train), LAG_MAX_SAMPLES))
                 shape: dict = realign.as_shape()
@@ -215,7 +134,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
                              {n: float(c) for n, c in zip(spec.coef_names, coef)} if not is_empirical(spec) else {},
                              _rmse(r_after), float(np.max(np.abs(r_after))), imp, lo,
                              bool(lo > 0.0 and imp >= MATERIAL), spec, F, Fte)
-            if d.target == Target.TAU_OUT:
+            if static:
                 cand.baseline_params = named_params(d.kind, th, fit.alpha_s_rad, fit.eta_s_rad_s)
             if is_empirical(spec) and k:
                 knots = np.array([float(x) for x in str(shape["knots"]).split(",")])
@@ -263,13 +182,20 @@ def decimation_index(n: int, max_samples: int | None) -> np.ndarray:
 
 
 def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
-          progress: Progress | None = None, max_samples: int | None = MAX_SAMPLES) -> ClosureResult:
+          progress: Progress | None = None, max_samples: int | None = MAX_SAMPLES,
+          dynamic: bool = True) -> ClosureResult:
     """Run the closure (see module docstring).
 
-    Signals are derived at the full rate by the caller; the fits use at most
+    ``dynamic`` (default): the baseline is the reduced model simulated through every
+    sample of every run (:mod:`capstan.models.closure.dynamic_closure`), the effects are
+    fitted on its residual, and signals tied to the predicted channel are excluded;
+    otherwise the static friction-on-velocity regression of tau_out. The static
+    regression is fitted in both cases: it is the controller's feedforward map.
+
+    Signals are derived at the full rate by the caller; the effect fits use at most
     ``max_samples`` samples of each of train and test (every k-th sample).
 
-    :raises ModelError: if the baseline cannot be fitted.
+    :raises ModelError: if a baseline cannot be fitted.
     """
     idx_tr, idx_te = decimation_index(len(train), max_samples), decimation_index(len(test), max_samples)
     train_d, test_d = train.take(idx_tr), test.take(idx_te)
@@ -277,8 +203,12 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     ctx = FeatureContext.from_train(train_d, baseline)
     labels = test_blocks(test_d)
     emp = empirical_candidates(train)
-    specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp if s.target == Target.TAU_OUT and s.applicable(test)]}
-    if train.deflection_rad is not None and test.deflection_rad is not None:
+    ds = dyn_setup(train, test) if dynamic else None
+    specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp
+                              if s.target == Target.TAU_OUT and s.applicable(test)] if ds is None else []}
+    # the static elastic path (tau_in + tau_out linear in the angles) only beside the static
+    # baseline: the dynamic model carries the elastic state itself
+    if ds is None and train.deflection_rad is not None and test.deflection_rad is not None:
         specs[Target.ELASTIC] = [s for s in catalogue_for(train) + emp if s.target == Target.ELASTIC]
     total = sum(len(v) for v in specs.values()) * 2
     v95 = float(np.percentile(np.abs(train_d.dq_out_rad_s), 95))
@@ -287,26 +217,33 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     for t, sp in specs.items():
         X0: np.ndarray | None = None
         X0t: np.ndarray | None = None
+        theta0: np.ndarray | None = None
+        if t == Target.TAU_OUT and ds is not None:     # effects inside the simulation
+            r, step = close_in_model(ds, train, test, progress, step, total)
+            # scored on every held-out sample; the arrays kept for the plots on the rows of test_d
+            r.y_test, r.pred_before, r.pred_after = r.y_test[idx_te], r.pred_before[idx_te], r.pred_after[idx_te]
+            targets[t] = r
+            continue
         if t == Target.TAU_OUT:
             y, yt = train_d.tau_out_Nm, test_d.tau_out_Nm
+            theta0 = baseline.theta.copy()
         else:
             assert train_d.q_in_rad is not None and test_d.q_in_rad is not None
             y, yt = train_d.tau_in_Nm + train_d.tau_out_Nm, test_d.tau_in_Nm + test_d.tau_out_Nm
             X0 = np.column_stack([train_d.q_in_rad, train_d.q_out_rad, np.ones(len(train_d))])
             X0t = np.column_stack([test_d.q_in_rad, test_d.q_out_rad, np.ones(len(test_d))])
         aug = Augmented(TargetData(t, kind, train, test, idx_tr, idx_te, y, yt, X0, X0t, v95), ctx,
-                        baseline.alpha_s_rad, baseline.eta_s_rad_s,
-                        theta=baseline.theta.copy() if t == Target.TAU_OUT else None)
+                        baseline.alpha_s_rad, baseline.eta_s_rad_s, theta=theta0)
         targets[t], step = _close_target(aug, sp, labels, progress, step, total)
-    trace = []
-    for c in targets[Target.TAU_OUT].candidates:
-        if c.round == 1 and (is_empirical(c.spec) or c.effect == "sensor_latency"):
+    trace = list(targets[Target.TAU_OUT].trace)
+    for c in targets[Target.TAU_OUT].candidates if ds is None else []:
+        if c.round == 1 and (c.effect.startswith("empirical:") or c.effect == "sensor_latency"):
             trace.append({"signal": c.depends_on[0], "explained": max(0.0, 1.0 - (1.0 - c.improvement) ** 2),
                           "improvement": c.improvement, "significant": c.significant})
     trace.sort(key=lambda d: -d["explained"])
     if progress:
         progress(total, total, "done")
-    return ClosureResult(baseline, train_d, test_d, targets, trace)
+    return ClosureResult(baseline, train_d, test_d, targets, trace, ds)
 
 
 def split_single(sig: Signals, train_fraction: float = 0.7) -> tuple[Signals, Signals]:

@@ -70,7 +70,8 @@ def dwell_states(dq_rad_s: np.ndarray, dt_s: np.ndarray, v_rest_rad_s: float,
         out_slide_rad[i] = slide
 
 
-def _derivative(x: np.ndarray, dt_s: float, window_s: float) -> np.ndarray:
+def derivative(x: np.ndarray, dt_s: float, window_s: float) -> np.ndarray:
+    """d x / dt by a quadratic Savitzky-Golay filter over ``window_s`` [s] (np.gradient on short runs)."""
     n = x.shape[0]
     w = max(5, int(round(window_s / dt_s)) | 1)
     if n <= w:
@@ -103,6 +104,11 @@ class Signals:
     names: list[str] = field(default_factory=list)
     v_rest_rad_s: float = REST_FLOOR_RAD_S
     ratio_q: float = 1.0
+    #: declared output environment per sample, columns [k_out Nm/rad, b_out Nm s/rad]
+    #: (eq 22), or None when not every run declares one
+    environment: np.ndarray | None = None
+    #: extra channels declared (import description ``tied_to``) as measuring a torque channel
+    tied_to: dict[str, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -115,7 +121,7 @@ class Signals:
                        self.q_out_rad[mask], self.dq_out_rad_s[mask], self.ddq_out_rad_s2[mask],
                        self.dwell_s[mask], self.rest_s[mask], self.slide_rad[mask], tk(self.q_in_rad),
                        tk(self.tension_N), {k: v[mask] for k, v in self.extras.items()}, list(self.names),
-                       self.v_rest_rad_s, self.ratio_q)
+                       self.v_rest_rad_s, self.ratio_q, tk(self.environment), dict(self.tied_to))
 
     @property
     def deflection_rad(self) -> np.ndarray | None:
@@ -180,8 +186,8 @@ def signals_from_tables(tables: list[MeasurementTable], v_rest_rad_s: float | No
             q = np.asarray(tb["q_out"], float) if tb.has("q_out") else np.concatenate([[0.0], np.cumsum(v[1:] * np.diff(t))])
         else:
             q = np.asarray(tb["q_out"], float)
-            v = _derivative(q, dt, velocity_window_s)
-        a = _derivative(v, dt, 2.0 * velocity_window_s)
+            v = derivative(q, dt, velocity_window_s)
+        a = derivative(v, dt, 2.0 * velocity_window_s)
         cols = {"t": t, "run": np.full(len(t), float(k)), "tau_in": tb["tau_in"], "tau_out": tb["tau_out"],
                 "q": q, "v": v, "a": a}
         if has_qin:
@@ -190,6 +196,9 @@ def signals_from_tables(tables: list[MeasurementTable], v_rest_rad_s: float | No
             cols["T"] = np.mean([tb[c] for c in tension_cols], axis=0)
         for e in extra_names:
             cols["x:" + e] = tb[e]
+        if all(_declared_environment(t) is not None for t in tables):
+            k_out, b_out = _declared_environment(tb)  # type: ignore[misc]
+            cols["env_k"], cols["env_b"] = np.full(len(t), k_out), np.full(len(t), b_out)
         for key, val in cols.items():
             parts.setdefault(key, []).append(np.asarray(val, dtype=np.float64))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
@@ -217,4 +226,28 @@ def signals_from_tables(tables: list[MeasurementTable], v_rest_rad_s: float | No
             ratio_q = float(np.dot(qo, cat["q_in"] - cat["q_in"].mean()) / max(np.dot(qo, qo), 1e-12))
     return Signals(cat["t"], run, cat["tau_in"], cat["tau_out"], cat["q"], v_all, cat["a"], dwell, rest, slide,
                    cat.get("q_in"), cat.get("T"), {e: cat["x:" + e] for e in sorted(extra_names)},
-                   [tb.source for tb in tables], float(v_rest_rad_s), ratio_q)
+                   [tb.source for tb in tables], float(v_rest_rad_s), ratio_q,
+                   np.column_stack([cat["env_k"], cat["env_b"]]) if "env_k" in cat else None,
+                   {str(k): str(v) for tb in tables for k, v in (tb.meta.get("tied_to") or {}).items()})
+
+
+def _declared_environment(tb: MeasurementTable) -> tuple[float, float] | None:
+    """(k_out [Nm/rad], b_out [Nm s/rad]) from the table's ``environment`` meta, or None.
+
+    :raises DataFormatError: if the declaration is malformed (naming the table and key).
+    """
+    env = tb.meta.get("environment")
+    if env is None:
+        return None
+    if not isinstance(env, dict) or "k_out" not in env or "b_out" not in env:
+        raise DataFormatError(f"{tb.source or '<table>'}: meta 'environment' must be a mapping with k_out and b_out, "
+                              f"got {env!r}")
+    try:
+        k, b = float(env["k_out"]), float(env["b_out"])
+    except (TypeError, ValueError):
+        raise DataFormatError(f"{tb.source or '<table>'}: meta 'environment' k_out/b_out must be numbers, "
+                              f"got {env!r}") from None
+    if not (np.isfinite(k) and np.isfinite(b) and k >= 0.0 and b >= 0.0 and k + b > 0.0):
+        raise DataFormatError(f"{tb.source or '<table>'}: meta 'environment' needs k_out >= 0, b_out >= 0 "
+                              f"(not both 0), got k_out={k}, b_out={b}")
+    return k, b

@@ -1,7 +1,11 @@
 """``capstan close TRAIN... --test HELDOUT... --report DIR [--json]``: close the model
 loop with measured data (see :mod:`capstan.models.closure.pipeline`).
 
-1. fit the baseline (as ``identify``) on the training runs only;
+1. fit the baseline on the training runs only: by default the reduced model simulated
+   through every sample with friction as a state, driven by the boundary signals the runs
+   carry (the form and the predicted channel are stated; channels tied to that channel
+   are excluded from the candidates); ``--baseline static`` for the friction-on-velocity
+   regression (it is fitted in both cases: the controller's feedforward map);
 2. predict the held-out runs; residual = measured - predicted. With a single run and
    no ``--test``, the run is split into a contiguous head (first 70 %, training) and
    tail (last 30 %, held out) -- never random samples;
@@ -30,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--test", nargs="*", default=[], help="held-out runs (none: split a single run 70/30)")
     parser.add_argument("--report", required=True, help="report directory (Markdown + PNG + JSON + fragment)")
     parser.add_argument("--model", choices=("reduced", "wu"), default="reduced", help="baseline model")
+    parser.add_argument("--baseline", choices=("dynamic", "static"), default="dynamic",
+                        help="dynamic: the reduced model simulated through each run, friction as a state, effects "
+                             "inside it (default); static: the friction-on-measured-velocity regression of tau_out")
     parser.add_argument("--import", dest="import_desc", help="import description YAML for other layouts")
     parser.add_argument("--train-fraction", type=float, default=0.7,
                         help="single-run split: contiguous training head fraction (default 0.7)")
@@ -71,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         train_names = [f"{src} [t {sig.t_s[0]:.3f}-{sig.t_s[k - 1]:.3f} s]"]
         test_names = [f"{src} [t {sig.t_s[k]:.3f}-{sig.t_s[-1]:.3f} s]"]
     bar = Progress("close", enabled=not args.no_progress)
-    res = close(train, test, ModelKind.parse(args.model), progress=lambda d, t, _l: bar.update(d, t))
+    res = close(train, test, ModelKind.parse(args.model), progress=lambda d, t, _l: bar.update(d, t),
+                dynamic=args.baseline == "dynamic")
     bar.done()
     summ = summary(res, train_names, test_names, args.model)
     outdir = Path(args.report)
@@ -85,15 +93,25 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summ, default=float))
         return 0
-    print(f"baseline ({args.model}) held-out RMSE {summ['baseline']['rmse_Nm']:.4g} Nm, "
-          f"max {summ['baseline']['max_err_Nm']:.4g} Nm")
+    b = summ["baseline"]
+    print(f"baseline ({args.model}, {args.baseline}) predicts {b['target']} from {', '.join(b['driving'])}: "
+          f"held-out RMSE {b['rmse_Nm']:.4g} Nm, max {b['max_err_Nm']:.4g} Nm, skill {b['skill']:.3f}")
+    for name in b.get("at_bound", []):
+        print(f"  ! parameter {name} = {b['params'][name]:.4g} ends at a bound of its physical domain")
+    for name, why in b.get("implausible", {}).items():
+        print(f"  ! parameter {name} implausible: {why}")
+    for w in b.get("warnings", []):
+        print(f"  ! {w}")
+    for e in summ.get("excluded", []):
+        print(f"  - {e['signal']} is not a candidate: {e['reason']}")
     for s in summ["selected"]:
         print(f"  + {s['effect']} ({', '.join(s['depends_on'])}): {100 * s['improvement']:.1f} % lower RMSE")
     if not summ["selected"]:
         print("  no effect improves the held-out prediction significantly")
     for u in summ.get("unexplained", []):
         print(f"  ! {u}")
-    print(f"final held-out RMSE {summ['final']['rmse_Nm']:.4g} Nm, max {summ['final']['max_err_Nm']:.4g} Nm")
+    print(f"final held-out RMSE {summ['final']['rmse_Nm']:.4g} Nm, max {summ['final']['max_err_Nm']:.4g} Nm, "
+          f"skill {summ['final']['skill']:.3f}")
     if "elastic" in summ:
         e = summ["elastic"]
         print(f"elastic path RMSE {e['baseline_rmse_Nm']:.4g} -> {e['final_rmse_Nm']:.4g} Nm")

@@ -8,9 +8,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from capstan.models.closure.pipeline import Candidate, ClosureResult
+from capstan.models.closure.dynamic_closure import skill
 from capstan.models.closure.effects import Target
 from capstan.models.closure.effects_runtime import EffectCode, signal_code
 from capstan.models.closure.residual_trace import is_empirical
@@ -43,6 +45,7 @@ def summary(res: ClosureResult, train_names: list[str], test_names: list[str], m
         "trace": res.trace,
         "data": {"train": train_names, "test": test_names},
     }
+    _dynamic_keys(res, out)
     if Target.ELASTIC in res.targets:
         el = res.targets[Target.ELASTIC]
         out["elastic"] = {"baseline_rmse_Nm": el.rmse_before_Nm, "final_rmse_Nm": el.rmse_after_Nm,
@@ -51,6 +54,31 @@ def summary(res: ClosureResult, train_names: list[str], test_names: list[str], m
     if unexplained:
         out["unexplained"] = unexplained
     return out
+
+
+def _dynamic_keys(res: ClosureResult, out: dict[str, Any]) -> None:
+    """baseline.target / driving / target_std_Nm and skill (baseline and final); with the
+    dynamic baseline also its parameters, their status and the excluded signals. The
+    static regression's parameters stay under ``baseline.feedforward`` (the controller's map)."""
+    main = res.targets[Target.TAU_OUT]
+    b, f = out["baseline"], out["final"]
+    ds = res.dynamic
+    std = float(np.std(ds.y_test_Nm if ds is not None else main.y_test))
+    b["target_std_Nm"] = std
+    b["skill"] = skill(main.rmse_before_Nm, std)
+    f["skill"] = skill(main.rmse_after_Nm, std)
+    if ds is None:
+        b["target"], b["driving"] = "tau_out", ["tau_in", "dq_out"]
+        b["form"] = "static friction-on-velocity regression"
+        return
+    fit = ds.fit
+    b["feedforward"] = {"params": b["params"], "stderr": b["stderr"]}
+    b.update({"simulation": "dynamic: the reduced model integrated through each run, friction as a state", "target": fit.spec.target,
+              "driving": list(fit.spec.driving), "form": fit.spec.form.name.lower(), "form_reason": fit.spec.reason,
+              "params": fit.params, "stderr": fit.stderr, "at_bound": fit.at_bound, "implausible": fit.implausible,
+              "undetermined": fit.undetermined, "warnings": fit.warnings, "train_rmse_Nm": fit.rmse_Nm,
+              "n_train_samples": fit.n_samples})
+    out["excluded"] = [{"signal": k, "reason": v} for k, v in sorted(ds.excluded.items())]
 
 
 def fragment(res: ClosureResult, model: str, refs: dict[str, float], q_ref_rad: float) -> dict[str, Any]:

@@ -14,6 +14,9 @@ An import description is a YAML mapping::
       q_in:   {column: 2, scale: "2*pi/8192", unit: rad}
       tau_out: {column: "Front-end Futek Torque [counts]", scale: 3.9811e-5, sign: -1, unit: Nm}
     meta: {r_in: 0.04}                 # copied into the table's sidecar meta
+    # an extra channel that measures a torque channel or is tied to it algebraically
+    # (a drive current, an environment command) is marked so, and the closure never
+    # takes it for a mechanism:   current_in: {column: 4, unit: A, tied_to: tau_in}
     attribution: "..."                 # licence / citation text, copied into meta
 
 Per channel: ``column`` is a 1-based index or a header name (matched case- and
@@ -42,7 +45,9 @@ from capstan.models.common.measurement_table import STANDARD_COLUMNS, Measuremen
 
 _TOP_KEYS = frozenset({"name", "delimiter", "comment", "skip_rows", "header", "channels", "meta",
                        "attribution", "description"})
-_CHANNEL_KEYS = frozenset({"column", "scale", "offset", "sign", "unit", "description"})
+_CHANNEL_KEYS = frozenset({"column", "scale", "offset", "sign", "unit", "description", "tied_to"})
+#: what ``tied_to`` may name: the measured torques a channel can be a second look at
+_TIE_TARGETS = ("tau_in", "tau_out")
 _OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
         ast.Div: operator.truediv, ast.Pow: operator.pow, ast.USub: operator.neg, ast.UAdd: operator.pos}
 
@@ -113,6 +118,9 @@ class ImportDescription:
         if "tau_in" not in chans and "tau_out" not in chans:
             raise ConfigError(f"{where}.channels", "needs at least one of tau_in, tau_out")
         self.channels: dict[str, dict[str, Any]] = {}
+        #: extra channels that measure a torque channel or are tied to it algebraically
+        #: (a drive current, an environment command): never candidate mechanisms of the closure
+        self.tied_to: dict[str, str] = {}
         for ch, spec in chans.items():
             key = f"{where}.channels.{ch}"
             if not isinstance(spec, Mapping):
@@ -131,6 +139,13 @@ class ImportDescription:
                                                  f"to {std} and write unit: {std} (got {unit!r})")
             if std is None and unit is None:
                 raise ConfigError(f"{key}.unit", "extra channels must state their unit")
+            tied = spec.get("tied_to")
+            if tied is not None:
+                if tied not in _TIE_TARGETS:
+                    raise ConfigError(f"{key}.tied_to", f"must be one of {', '.join(_TIE_TARGETS)}, got {tied!r}")
+                if std is not None:
+                    raise ConfigError(f"{key}.tied_to", f"only extra channels can be marked; '{ch}' is a standard channel")
+                self.tied_to[str(ch)] = str(tied)
             self.channels[str(ch)] = {
                 "column": col,
                 "scale": _eval_number(spec.get("scale", 1.0), f"{key}.scale"),
@@ -232,6 +247,8 @@ class ImportDescription:
         dropped = int((~keep).sum())
         cols = {k: v[keep] for k, v in cols.items()}
         meta = dict(self.meta)
+        if self.tied_to:
+            meta["tied_to"] = dict(self.tied_to)
         meta["import"] = {"description": self.name, "file": p.name, "rows": int(keep.sum()),
                           "dropped_nonincreasing_time": dropped,
                           "units": {ch: spec["unit"] for ch, spec in self.channels.items()}}

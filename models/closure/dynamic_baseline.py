@@ -1,0 +1,410 @@
+"""The closure's dynamic baseline: the paper's reduced model (eqs 14-21, eq-25 averaged
+pretension in ``tau_fc``) simulated through each whole run with friction as a state
+(:mod:`capstan.models.transmission.stick_slip`), fitted by nonlinear least squares on the
+simulation (output error).
+
+The two cables of the pull-pull pair carry equal and opposite tension changes about the
+averaged pretension, so their two torsional units (one per cable, stiffness ``K_c`` each
+referred to the joint, capacity ``tau_fc / 2`` each) move together and are simulated as
+one unit of stiffness ``2 K_c`` per side and capacity ``tau_fc``.
+
+Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
+(:func:`choose_form`) and stated in the report:
+
+``OUTPUT_HELD`` -- the output is held at a (per-run) constant torque (std of tau_out
+    below ``HELD_FRACTION`` of tau_in's): q_in and tau_out drive, tau_in is predicted.
+    ``K_in (q_in - x) - g tau_out = f``; ``tau_in = K_in (q_in - x) + c_in``.
+``TESTBED`` -- tau_in drives the declared environment ``tau_out = k_out q + b_out dq``
+    (eq 22; fitted when no environment is declared): eq (20) with the friction state,
+    ``(b_out) v + f = rho tau_in - k_out x``; tau_out is predicted.
+``ANGLES`` -- both pulley angles drive the node of the unit:
+    ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
+    are predicted; the fit uses both torques.
+
+Parameters are bounded to the physical domain (``tau_fc >= 0``, stiffnesses > 0,
+``zeta_s >= zeta_c = 1``, ``eta_s > 0``, ``b_vis >= 0``); one that ends at a bound or outside
+its plausible range is listed in :attr:`DynamicFit.at_bound` / :attr:`DynamicFit.implausible`.
+Uncertainties: block-sandwich covariance of the output-error Jacobian.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from capstan.models.closure.effects import shift_within_runs
+from capstan.models.closure.identification import fit_elastic, sandwich_cov
+from capstan.models.closure.signals import Signals, derivative
+from capstan.models.common.errors import ModelError
+from capstan.models.transmission.stick_slip import simulate_unit
+
+#: the output counts as held when std(tau_out) < HELD_FRACTION * std(tau_in) (every run)
+HELD_FRACTION = 0.1
+#: Savitzky-Golay window of the input-angle derivative [s]
+VELOCITY_WINDOW_S = 0.025
+#: starting presliding travel (capacity / k_pre) as a fraction of the run's angle span
+PRESLIDE_FRACTION = 1e-4
+#: least-squares evaluations of the simulation per start
+MAX_NFEV = 60
+#: starting stiction ratio
+ZETA_S0 = 1.05
+#: relative finite-difference step of the Jacobian (wide: stick-slip switching makes the
+#: output error piecewise smooth in the parameters)
+DIFF_STEP = 1e-2
+
+
+class DrivingForm(IntEnum):
+    """Which measured boundary signals drive the simulation (module docstring)."""
+
+    OUTPUT_HELD = 0
+    TESTBED = 1
+    ANGLES = 2
+
+
+@dataclass(frozen=True)
+class FormSpec:
+    """A driving form as stated in the report: the channel predicted, the driving signals."""
+
+    form: DrivingForm
+    target: str
+    driving: tuple[str, ...]
+    reason: str
+
+
+@dataclass
+class DynamicFit:
+    """A fitted dynamic baseline.
+
+    :ivar params: named parameters (SI; ``zeta_s`` dimensionless).
+    :ivar stderr: standard errors (block sandwich), same keys.
+    :ivar at_bound: parameters that ended on a bound of the physical domain.
+    :ivar implausible: ``{name: reason}`` for parameters outside their plausible range.
+    :ivar undetermined: parameters whose standard error exceeds their magnitude (the data
+        do not determine them; e.g. a stiffness in series with a softer presliding one).
+    :ivar warnings: data findings stated in the report (e.g. a negative mean input power:
+        the torque and angle sign conventions disagree).
+    :ivar rmse_Nm: training RMSE on the target [Nm].
+    """
+
+    spec: FormSpec
+    params: dict[str, float]
+    stderr: dict[str, float] = field(default_factory=dict)
+    at_bound: list[str] = field(default_factory=list)
+    implausible: dict[str, str] = field(default_factory=dict)
+    undetermined: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    rmse_Nm: float = math.nan
+    n_samples: int = 0
+    nfev: int = 0
+    #: the environment of the TESTBED form is the runs' declared one (per run), not fitted
+    declared_env: bool = False
+
+    def predict(self, sig: Signals) -> np.ndarray:
+        """The target channel predicted on ``sig`` [Nm] (every sample, runs separately).
+
+        :raises ModelError: if the simulation fails or ``sig`` lacks a driving channel.
+        """
+        return self.predict_both(sig)[0]
+
+    def predict_both(self, sig: Signals) -> tuple[np.ndarray, np.ndarray | None]:
+        """(target, the other torque or None) predicted on ``sig`` [Nm]."""
+        return _predict(self.spec.form, _vector(self.spec.form, self.params), sig, self.declared_env)
+
+
+def held_output(sig: Signals) -> bool:
+    """True when every run's tau_out is constant compared with its tau_in (a held output)."""
+    for a, b in sig.segments():
+        if b - a < 2 or np.std(sig.tau_out_Nm[a:b]) >= HELD_FRACTION * max(np.std(sig.tau_in_Nm[a:b]), 1e-12):
+            return False
+    return len(sig) > 0
+
+
+def choose_form(sig: Signals) -> FormSpec:
+    """The driving form for ``sig`` (see the module docstring for the order).
+
+    :raises ModelError: if the runs carry none of the needed channel sets.
+    """
+    has_angles = sig.q_in_rad is not None
+    if held_output(sig):
+        if not has_angles:
+            raise ModelError("the output torque is held constant, so tau_in must be predicted, and that needs "
+                             "the input angle q_in (not in the runs)")
+        return FormSpec(DrivingForm.OUTPUT_HELD, "tau_in", ("q_in", "tau_out"),
+                        "tau_out is held at a constant torque per run (it carries no transmission dynamics)")
+    if sig.environment is not None:
+        return FormSpec(DrivingForm.TESTBED, "tau_out", ("tau_in", "environment"),
+                        "the runs declare the output environment tau_out = k_out q_out + b_out dq_out")
+    if has_angles:
+        return FormSpec(DrivingForm.ANGLES, "tau_out", ("q_in", "q_out"),
+                        "both pulley angles are measured and no output environment is declared")
+    return FormSpec(DrivingForm.TESTBED, "tau_out", ("tau_in", "environment (fitted)"),
+                    "no input angle and no declared environment: the environment k_out, b_out is fitted")
+
+
+_NAMES = {DrivingForm.OUTPUT_HELD: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
+                                    "offset_in_Nm"),
+          DrivingForm.TESTBED: ("k_out_Nm_rad", "b_out_Nms_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s",
+                                "b_vis_Nms_rad", "offset_out_Nm"),
+          DrivingForm.ANGLES: ("K_c_Nm_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
+                               "offset_in_Nm", "offset_out_Nm")}
+
+
+def param_names(form: DrivingForm) -> tuple[str, ...]:
+    """Names of the form's parameters, in the order of the fitted vector."""
+    return _NAMES[form]
+
+
+def _vector(form: DrivingForm, params: dict[str, float]) -> np.ndarray:
+    return np.array([params[n] for n in _NAMES[form]])
+
+
+def _starts(sig: Signals) -> np.ndarray:
+    return np.array([a for a, _ in sig.segments()] + [len(sig)], dtype=np.int64)
+
+
+@dataclass
+class Mods:
+    """Effects acting inside the simulation (:mod:`capstan.models.closure.dynamic_effects`).
+
+    :ivar cap_scale: per-sample multiplier of the friction capacity (clipped at 0), or None.
+    :ivar drive_Nm: per-sample torque added to the torque balance's drive [Nm], or None.
+    :ivar c2_Nms2_rad2: drag ``c2 v |v|`` at speed.
+    :ivar lag_s: the target measured this late (negative: the driving channels late) [s].
+    """
+
+    cap_scale: np.ndarray | None = None
+    drive_Nm: np.ndarray | None = None
+    c2_Nms2_rad2: float = 0.0
+    lag_s: float = 0.0
+
+
+def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
+             declared_env: bool, mods: Mods | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Simulate ``sig`` with parameter vector ``p`` (and effects ``mods``): (target, other torque or None)."""
+    n = len(sig)
+    starts = _starts(sig)
+    x, v, fr = np.empty(n), np.empty(n), np.empty(n)
+    rho = sig.ratio_q
+    if form == DrivingForm.OUTPUT_HELD:
+        K, g, tfc, kp, zs, eta, bv, c_in = p
+        if sig.q_in_rad is None:
+            raise ModelError("the OUTPUT_HELD form needs q_in")
+        a = K * sig.q_in_rad - g * sig.tau_out_Nm
+        x0 = a[starts[:-1]] / K
+        c0, kx = 0.0, K
+    elif form == DrivingForm.TESTBED:
+        kout, bout, tfc, kp, zs, eta, bv, c_out = p
+        a = rho * sig.tau_in_Nm
+        x0 = sig.q_out_rad[starts[:-1]].copy()
+        if declared_env:
+            if sig.environment is None:
+                raise ModelError("the baseline was fitted with a declared output environment; these runs declare none")
+            env = sig.environment[starts[:-1]]
+            c0, kx = env[:, 1].copy(), env[:, 0].copy()
+            kout, bout = sig.environment[:, 0], sig.environment[:, 1]
+        else:
+            c0, kx = bout, kout
+    else:
+        Kc, tfc, kp, zs, eta, bv, c_in, c_out = p
+        if sig.q_in_rad is None:
+            raise ModelError("the ANGLES form needs q_in")
+        Kh = 2.0 * Kc
+        a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
+        x0 = a[starts[:-1]] / (2.0 * Kh)
+        c0, kx = 0.0, 2.0 * Kh
+    mods = mods or Mods()
+    if mods.drive_Nm is not None:
+        a = a + mods.drive_Nm
+    cap = np.empty(0) if mods.cap_scale is None else np.ascontiguousarray(np.maximum(mods.cap_scale, 0.0))
+    nr = starts.shape[0] - 1
+    c0_r = np.broadcast_to(np.asarray(c0, dtype=np.float64), (nr,)).copy()
+    kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
+    done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
+                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
+                         float(mods.c2_Nms2_rad2))
+    if done != n:
+        raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
+                         "time not increasing or no damping/stiffness in the unit")
+    if form == DrivingForm.OUTPUT_HELD:
+        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + c_in, None)
+    elif form == DrivingForm.TESTBED:
+        out = (kout * x + bout * v + c_out, None)
+    else:
+        assert sig.q_in_rad is not None
+        out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+    if mods.lag_s != 0.0:
+        out = (shift_within_runs(out[0], sig, mods.lag_s),
+               None if out[1] is None else shift_within_runs(out[1], sig, mods.lag_s))
+    return out
+
+
+def input_velocity(sig: Signals) -> np.ndarray:
+    """dq_in [rad/s] (Savitzky-Golay derivative of q_in inside each run, as for q_out).
+
+    :raises ModelError: without q_in.
+    """
+    if sig.q_in_rad is None:
+        raise ModelError("no input angle q_in in the runs")
+    out = np.zeros(len(sig))
+    for a, b in sig.segments():
+        if b - a > 1:
+            out[a:b] = derivative(sig.q_in_rad[a:b], float(np.median(np.diff(sig.t_s[a:b]))), VELOCITY_WINDOW_S)
+    return out
+
+
+def _velocity_scale(sig: Signals, form: DrivingForm) -> float:
+    if form == DrivingForm.OUTPUT_HELD and sig.q_in_rad is not None:
+        dq = input_velocity(sig)
+    else:
+        dq = sig.dq_out_rad_s
+    v95 = float(np.percentile(np.abs(dq), 95)) if dq.size else 0.0
+    if not v95 > 0.0:
+        raise ModelError("the runs carry no motion (velocity is zero); nothing to identify")
+    return v95
+
+
+def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[bool]]:
+    """(start, lower bounds, upper bounds, fixed-by-declaration flags) of the parameter vector."""
+    form = spec.form
+    rho = sig.ratio_q
+    tin, tout = sig.tau_in_Nm, sig.tau_out_Nm
+    moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form != DrivingForm.OUTPUT_HELD else slice(None)
+    fixed = [False] * 8
+    if form == DrivingForm.OUTPUT_HELD:
+        assert sig.q_in_rad is not None
+        B = np.column_stack([tout, np.ones(len(sig))])
+        g0, c0 = np.linalg.lstsq(B, tin, rcond=None)[0]
+        g0 = max(float(g0), 1e-3)
+        f = tin - g0 * tout - c0
+        span_q = float(np.ptp(sig.q_in_rad)) or 1.0
+        K0 = 20.0 * float(np.ptp(tin)) / span_q
+        tfc0 = max(float(np.percentile(np.abs(f), 50)), 1e-6)
+        kp0 = tfc0 / (PRESLIDE_FRACTION * span_q)
+        x0 = [K0, g0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, float(c0)]
+        lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
+        hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
+    elif form == DrivingForm.TESTBED:
+        if sig.environment is not None:
+            k0, b0 = float(sig.environment[0, 0]), float(sig.environment[0, 1])
+            fixed[0] = fixed[1] = True
+        else:
+            Bq = np.column_stack([sig.q_out_rad, sig.dq_out_rad_s, np.ones(len(sig))])
+            k0, b0, _ = np.linalg.lstsq(Bq, tout, rcond=None)[0]
+            k0, b0 = max(float(k0), 1e-3), max(float(b0), 1e-3)
+        f = rho * tin - tout
+        tfc0 = max(float(np.percentile(np.abs(f[moving]), 50)) if np.any(moving) else 0.0, 1e-6)
+        kp0 = tfc0 / (PRESLIDE_FRACTION * max(float(np.ptp(sig.q_out_rad)), 1e-9))
+        x0 = [k0, b0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, 0.0]
+        lo = [1e-9, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
+        hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
+    else:
+        el = fit_elastic(sig).get("elastic", {})
+        K0 = float(el.get("K_c_Nm_rad", 0.0))
+        if not K0 > 0.0:
+            K0 = float(np.ptp(tout)) / max(float(np.ptp(sig.deflection_rad)), 1e-9)   # type: ignore[arg-type]
+        f = tin - tout / rho
+        tfc0 = max(float(np.percentile(np.abs(f[moving]), 50)) if np.any(moving) else 0.0, 1e-6)
+        kp0 = tfc0 / (PRESLIDE_FRACTION * max(float(np.ptp(sig.q_out_rad)), 1e-9))
+        x0 = [K0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, 0.0, 0.0]
+        lo = [1e-6 * K0, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf, -np.inf]
+        hi = [np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf, np.inf]
+    return np.array(x0, float), np.array(lo, float), np.array(hi, float), fixed
+
+
+def _target(sig: Signals, spec: FormSpec) -> np.ndarray:
+    return sig.tau_in_Nm if spec.target == "tau_in" else sig.tau_out_Nm
+
+
+def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_NFEV) -> DynamicFit:
+    """Fit the dynamic baseline to the training runs ``sig`` (every sample).
+
+    :raises ModelError: if the runs carry no motion, lack the channels of the form, or
+        the simulation fails.
+    """
+    spec = spec or choose_form(sig)
+    form = spec.form
+    v95 = _velocity_scale(sig, form)
+    p0, lo, hi, fixed = _initial(sig, spec, v95)
+    free = np.array([not f for f in fixed])
+    declared = bool(form == DrivingForm.TESTBED and fixed[0])
+    y = _target(sig, spec)
+    names = _NAMES[form]
+
+    def full(pf: np.ndarray) -> np.ndarray:
+        p = p0.copy()
+        p[free] = pf
+        return p
+
+    def resid(pf: np.ndarray) -> np.ndarray:
+        pred, other = _predict(form, full(pf), sig, declared)
+        if other is None:
+            return pred - y
+        return np.concatenate([pred - y, other - sig.tau_in_Nm])
+
+    x0 = np.clip(p0[free], lo[free], hi[free])
+    scale = np.maximum(np.abs(x0), 1e-3 * v95)
+    res = least_squares(resid, x0, bounds=(lo[free], hi[free]), x_scale=scale, diff_step=DIFF_STEP,
+                        max_nfev=max_nfev, method="trf")
+    p = full(res.x)
+    r = res.fun
+    J = res.jac
+    cov = sandwich_cov(J, r)
+    se_free = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    params = {nm: float(v) for nm, v in zip(names, p)}
+    stderr = {nm: 0.0 for nm in names}
+    for nm, s in zip([nm for nm, f in zip(names, free) if f], se_free):
+        stderr[nm] = float(s)
+    fit = DynamicFit(spec, params, stderr, n_samples=len(sig), nfev=int(res.nfev), declared_env=declared)
+    pred = _predict(form, p, sig, declared)[0]
+    fit.rmse_Nm = float(np.sqrt(np.mean((pred - y) ** 2)))
+    for i, nm in enumerate(names):
+        if not free[i]:
+            continue
+        tol = 1e-6 * max(abs(p[i]), 1e-9) + 1e-12
+        if (np.isfinite(lo[i]) and p[i] - lo[i] <= max(tol, 1e-4 * abs(lo[i]))) or \
+                (np.isfinite(hi[i]) and hi[i] - p[i] <= max(tol, 1e-4 * abs(hi[i]))):
+            fit.at_bound.append(nm)
+    fit.implausible = plausibility(params, y, v95)
+    fit.undetermined = [nm for i, nm in enumerate(names) if free[i] and stderr[nm] > abs(p[i])]
+    if params["zeta_s"] - 1.0 <= 1e-3 and "eta_s_rad_s" not in fit.undetermined:
+        fit.undetermined.append("eta_s_rad_s")     # no stiction peak: its width means nothing
+    fit.warnings = power_warnings(sig, form)
+    return fit
+
+
+def power_warnings(sig: Signals, form: DrivingForm) -> list[str]:
+    """A warning when the mean input power ``tau_in dq_in`` is negative (the drive cannot take
+    energy out of a passive transmission: a sign convention of the import is wrong)."""
+    if sig.q_in_rad is None:
+        return []
+    p = float(np.mean(sig.tau_in_Nm * input_velocity(sig)))
+    if p < 0.0:
+        return [f"mean input power tau_in * dq_in is negative ({p:.3g} W): the signs of tau_in and q_in "
+                "disagree (fix the sign of one of them in the import description)"]
+    return []
+
+
+def plausibility(params: dict[str, float], target_Nm: np.ndarray, v95_rad_s: float) -> dict[str, str]:
+    """``{name: reason}`` of parameters outside their plausible range for a cable transmission."""
+    span = float(np.ptp(target_Nm)) if target_Nm.size else 0.0
+    out: dict[str, str] = {}
+    zs = params.get("zeta_s", 1.0)
+    if zs > 3.0:
+        out["zeta_s"] = f"{zs:.3g} > 3: a stiction peak three times the sliding friction"
+    tfc = params.get("tau_fc_Nm", 0.0)
+    if span > 0.0 and tfc > span:
+        out["tau_fc_Nm"] = f"{tfc:.3g} Nm exceeds the whole span of the target ({span:.3g} Nm)"
+    eta = params.get("eta_s_rad_s", v95_rad_s)
+    if eta > 10.0 * v95_rad_s and zs - 1.0 > 1e-3:    # (with zeta_s = 1, eta_s has no effect)
+        out["eta_s_rad_s"] = f"{eta:.3g} rad/s is beyond 10x the run's 95th-percentile speed ({v95_rad_s:.3g} rad/s)"
+    bv = params.get("b_vis_Nms_rad", 0.0)
+    if span > 0.0 and bv * v95_rad_s > span:
+        out["b_vis_Nms_rad"] = f"viscous torque at the 95th-percentile speed ({bv * v95_rad_s:.3g} Nm) exceeds the target span"
+    for k in ("K_c_Nm_rad", "K_in_Nm_rad", "k_out_Nm_rad"):
+        if k in params and not 1e-3 <= params[k] <= 1e6:
+            out[k] = f"{params[k]:.3g} Nm/rad outside [1e-3, 1e6]"
+    return out

@@ -1,0 +1,201 @@
+"""The closure on the dynamic baseline (:mod:`capstan.models.closure.dynamic_baseline`).
+
+The baseline is simulated through every sample of every run. Each candidate effect acts
+inside that simulation and is fitted jointly with the baseline's parameters
+(:mod:`capstan.models.closure.dynamic_effects`); the residual trace and the greedy
+selection run on the dynamic residual, scored on every held-out sample by the block
+bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechanisms
+(:mod:`capstan.models.closure.exclusion`) are never candidates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from capstan.models.closure.dynamic_baseline import DynamicFit, fit_dynamic
+from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit, Refs, catalogue
+from capstan.models.closure.effects import Target
+from capstan.models.closure.exclusion import excluded_signals
+from capstan.models.closure.residual_trace import hat_basis, knots_for
+from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
+from capstan.models.closure.signals import Signals
+
+
+@dataclass
+class DynamicSetup:
+    """The dynamic baseline and what the closure needs of it.
+
+    :ivar pred_train_Nm / pred_test_Nm: the target predicted on every sample [Nm].
+    :ivar excluded: ``{signal: reason}`` of the signals that are not candidates.
+    """
+
+    fit: DynamicFit
+    pred_train_Nm: np.ndarray
+    pred_test_Nm: np.ndarray
+    y_train_Nm: np.ndarray
+    y_test_Nm: np.ndarray
+    excluded: dict[str, str]
+
+
+
+def target_channel(sig: Signals, target: str) -> np.ndarray:
+    """The measured channel ``target`` ("tau_in" / "tau_out") of ``sig`` [Nm]."""
+    return sig.tau_in_Nm if target == "tau_in" else sig.tau_out_Nm
+
+
+def setup(train: Signals, test: Signals) -> DynamicSetup:
+    """Fit the dynamic baseline on every training sample and predict both sets.
+
+    :raises ModelError: if the baseline cannot be fitted or simulated.
+    """
+    fit = fit_dynamic(train)
+    tgt = fit.spec.target
+    return DynamicSetup(fit, fit.predict(train), fit.predict(test), target_channel(train, tgt),
+                        target_channel(test, tgt), excluded_signals(train, tgt, fit.spec.driving))
+
+
+#: a catalogue candidate is preferred when it achieves this share of the best empirical one
+PREFER_CATALOGUE = 0.7
+MAX_ROUNDS = 3
+#: an empirical in-model curve (2 x 5 coefficients, a description, not a mechanism) must cut
+#: the held-out RMSE by this much; a catalogued form (1-2 coefficients) by MATERIAL (5 %)
+MATERIAL_EMPIRICAL = 0.10
+#: family-wise one-sided level of a round's significance tests, and bootstrap resamples
+ALPHA = 0.05
+N_BOOT_DYN = 2000
+#: empirical in-model curves for this many signals, the ones the residual trace ranks first
+N_EMPIRICAL = 6
+#: knots of the trace's curves
+TRACE_KNOTS = 12
+
+Progress = Callable[[int, int, str], None]
+
+
+def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, refs: Refs) -> dict[str, float]:
+    """The coefficients in the feedforward's units (effects_runtime) where a catalogue form has them."""
+    if eff.name == "dwell_stiction":
+        return {"amp_Nm": float(coef[0] * tau_fc)}
+    if eff.name == "position_friction":
+        return {"a1_Nm_rad": float(coef[0] * tau_fc / refs.q_span_rad),
+                "a2_Nm_rad2": float(coef[1] * tau_fc / refs.q_span_rad ** 2)}
+    if eff.name == "pretension_relaxation":
+        return {"d_Nm": float(coef[0] * tau_fc)}
+    if eff.name == "load_friction":
+        return {"c_load": float(coef[0] * tau_fc / refs.tau_ref_Nm)}
+    if eff.name == "speed_viscous":
+        return {"c2_Nms2_rad2": float(coef[0]), "c3_Nms3_rad3": 0.0}
+    return {}
+
+
+def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict]:
+    """How much of the dynamic residual each candidate signal explains: a piecewise-linear
+    curve of the signal, additive and friction-like (times tanh(dq / 2 v_rest)), fitted on
+    the training residual and scored on the held-out one. Sorted, best first; excluded
+    signals and the deflection (the elastic state the simulation carries) are not traced."""
+    r_tr = ds.y_train_Nm - ds.pred_train_Nm
+    r_te = ds.y_test_Nm - ds.pred_test_Nm
+    base = _rmse(r_te)
+    out = []
+    for name in train.available():
+        x, xt = train.signal(name), test.signal(name)
+        if name in ds.excluded or name == "deflection" or x is None or xt is None:
+            continue
+        kn = knots_for(x, TRACE_KNOTS)
+        if kn is None:
+            continue
+
+        def design(sig: Signals, xs: np.ndarray) -> np.ndarray:
+            H = hat_basis(xs, kn)
+            s = np.tanh(sig.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+            return np.hstack([H, s[:, None] * H])
+
+        X = design(train, x)
+        G = X.T @ X
+        G[np.diag_indices_from(G)] += 1e-6 * max(float(np.trace(G)) / G.shape[0], 1e-12)
+        coef = np.linalg.solve(G, X.T @ r_tr)
+        imp = 1.0 - _rmse(r_te - design(test, xt) @ coef) / base if base > 0 else 0.0
+        out.append({"signal": name, "explained": max(0.0, 1.0 - (1.0 - imp) ** 2), "improvement": float(imp),
+                    "significant": False})
+    out.sort(key=lambda d: -d["improvement"])
+    return out
+
+
+def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Progress | None = None,
+                   step0: int = 0, total: int = 0) -> tuple[TargetResult, int]:
+    """Greedy closure with the effects inside the simulation (module docstring).
+
+    :raises ModelError: if a simulation fails.
+    """
+    fit = ds.fit
+    closer = InModelCloser(fit, train, test)
+    refs = Refs(float(np.mean(train.q_out_rad)), max(0.5 * float(np.ptp(train.q_out_rad)), 1e-6),
+                max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
+    trace = residual_trace(ds, train, test)
+    emp = [d["signal"] for d in trace][:N_EMPIRICAL]
+    remaining = catalogue(train, refs, ds.excluded, emp)
+    labels = test_blocks(test)
+    current = JointFit(np.array(list(fit.params.values())))
+    yt, pred_t = ds.y_test_Nm, ds.pred_test_Nm
+    res = TargetResult(Target.TAU_OUT, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t),
+                       float(np.max(np.abs(yt - pred_t))), math.nan, math.nan)
+    names = list(fit.params)
+    res.params_after = dict(fit.params)
+    step = step0
+    for rnd in range(1, MAX_ROUNDS + 1):
+        r_before = yt - pred_t
+        tried: list[Candidate] = []
+        fits: dict[int, tuple[JointFit, np.ndarray, InModelEffect, dict]] = {}
+        for eff in remaining:
+            step += 1
+            if progress:
+                progress(step, max(total, step), f"round {rnd}: {eff.name}")
+            shape = closer.best_shape(current, eff)
+            jf = closer.refit(current, eff, shape, base_free=False)
+            pt = closer.predict(jf)
+            r_after = yt - pt
+            # Bonferroni over the round's candidates: with every signal tried as an empirical
+            # curve, 5 % per candidate would let one of them through on clean data by chance
+            imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN, alpha=ALPHA / len(remaining))
+            coef = jf.effects[-1][2]
+            tau_fc = float(jf.base[names.index("tau_fc_Nm")])
+            cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                             _named(eff, shape, coef, tau_fc, refs), _rmse(r_after), float(np.max(np.abs(r_after))),
+                             imp, lo, bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
+            cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
+            fits[id(cand)] = (jf, pt, eff, shape)
+            tried.append(cand)
+        res.candidates.extend(tried)
+        sig_c = [c for c in tried if c.significant]
+        if not sig_c:
+            break
+        cat = [c for c in sig_c if not fits[id(c)][2].empirical]
+        emp = [c for c in sig_c if fits[id(c)][2].empirical]
+        best_cat = max(cat, key=lambda c: c.improvement) if cat else None
+        best_emp = max(emp, key=lambda c: c.improvement) if emp else None
+        win = best_cat if best_cat is not None and (
+            best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement) else best_emp
+        assert win is not None
+        res.selected.append(win)
+        _, _, weff, wshape = fits[id(win)]
+        # the selected effect refitted jointly with the baseline's parameters (kept where the
+        # joint fit does not lower the training error: refit returns the held fit then)
+        prev = JointFit(current.base, list(current.effects))
+        current = closer.refit(prev, weff, wshape, base_free=True)
+        win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)
+        pred_t = closer.predict(current)
+        res.params_after = {n: float(v) for n, v in zip(names, current.base)}
+        remaining = [e for e in remaining if e is not weff]
+    res.trace = trace
+    res.pred_after = pred_t
+    res.rmse_after_Nm = _rmse(yt - pred_t)
+    res.max_after_Nm = float(np.max(np.abs(yt - pred_t)))
+    return res, step
+
+
+def skill(rmse_Nm: float, std_Nm: float) -> float:
+    """``1 - RMSE / std`` of the predicted channel (0: no better than its mean; 1: exact)."""
+    return float(1.0 - rmse_Nm / std_Nm) if std_Nm > 0.0 else float("nan")

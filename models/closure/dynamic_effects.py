@@ -1,0 +1,252 @@
+"""Effects inside the dynamic model: each candidate acts where its mechanism acts and is
+fitted jointly with the baseline's parameters through the simulation (output error).
+
+=====================  ============  ===================================================
+effect                 depends_on    inside the simulation
+=====================  ============  ===================================================
+dwell_stiction         dwell         capacity x (1 + A (1 - exp(-rest/tau_age)) exp(-slide/s0))
+position_friction      position      capacity x (1 + A1 u + A2 u^2), u = (q_out - q_ref) / q_span
+pretension_relaxation  time          capacity x (1 + D (1 - exp(-t_run / tau_r)))
+load_friction          load          capacity x (1 + CL |tau_in| / tau_ref)
+speed_viscous          velocity      drag C2 v |v| in the slip law
+sensor_latency         latency       the target measured lag late (lag < 0: the drive late)
+empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): piecewise-linear
+                                     curves over knots at the training quantiles of x
+=====================  ============  ===================================================
+
+A shape (time constants, lag) is chosen on its grid with the baseline held (coefficients
+by Powell's derivative-free search), and the candidate is scored so; the selected effect
+is then refitted together with the baseline's free parameters (bounded least squares from
+there, kept where it lowers the training error).
+Scores are held-out (every sample of the held-out runs), by the caller's bootstrap.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares, minimize
+
+from capstan.models.closure.dynamic_baseline import DynamicFit, Mods, _initial, _predict, _target, _velocity_scale
+from capstan.models.closure.residual_trace import describe_curve, hat_basis, knots_for
+from capstan.models.closure.signals import Signals
+
+#: knots of an empirical in-model curve
+N_KNOTS = 5
+#: least-squares evaluations of a joint refit (per coefficient + 1 for a held one)
+MAX_NFEV = 30
+#: evaluations per coefficient (+1) of a shape-search fit (the baseline held)
+SHAPE_NFEV = 8
+#: lag grid [ms]
+LAGS_MS = (2, 5, 8, 12, 18, 25, 35, 50)
+
+ModsFn = Callable[[Signals, dict, np.ndarray], Mods]
+
+
+@dataclass(frozen=True)
+class InModelEffect:
+    """One candidate: ``mods(sig, shape, coef)`` builds its effect on the simulation."""
+
+    name: str
+    depends_on: tuple[str, ...]
+    coef_names: tuple[str, ...]
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+    grid: tuple[dict, ...]
+    mods: ModsFn
+    empirical: bool = False
+    knots: np.ndarray | None = None
+
+
+@dataclass
+class Refs:
+    """Training references of the effect forms (so the held-out runs use the same)."""
+
+    q_ref_rad: float
+    q_span_rad: float
+    tau_ref_Nm: float
+    drive_scale_Nm: float
+
+
+def _run_time(sig: Signals) -> np.ndarray:
+    t = np.empty(len(sig))
+    for a, b in sig.segments():
+        t[a:b] = sig.t_s[a:b] - sig.t_s[a]
+    return t
+
+
+def _merge(ms: list[Mods], n: int) -> Mods:
+    cap = np.ones(n)
+    drive = np.zeros(n)
+    out = Mods()
+    for m in ms:
+        if m.cap_scale is not None:
+            cap = cap * m.cap_scale
+        if m.drive_Nm is not None:
+            drive = drive + m.drive_Nm
+        out.c2_Nms2_rad2 += m.c2_Nms2_rad2
+        out.lag_s += m.lag_s
+    out.cap_scale, out.drive_Nm = cap, drive
+    return out
+
+
+def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: list[str]) -> list[InModelEffect]:
+    """The in-model candidates for ``train``: the catalogue (signals in ``excluded`` left
+    out) and an empirical curve for each signal in ``empirical``."""
+    def dwell(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        g = (1.0 - np.exp(-s.rest_s / sh["tau_age_s"])) * np.exp(-s.slide_rad / sh["s0_rad"])
+        return Mods(cap_scale=1.0 + c[0] * g)
+
+    def position(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        u = (s.q_out_rad - refs.q_ref_rad) / refs.q_span_rad
+        return Mods(cap_scale=1.0 + c[0] * u + c[1] * u * u)
+
+    def relax(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        return Mods(cap_scale=1.0 + c[0] * (1.0 - np.exp(-_run_time(s) / sh["tau_r_s"])))
+
+    def load(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        return Mods(cap_scale=1.0 + c[0] * np.abs(s.tau_in_Nm) / refs.tau_ref_Nm)
+
+    def speed(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        return Mods(c2_Nms2_rad2=float(c[0]))
+
+    def latency(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+        return Mods(lag_s=float(sh["lag_s"]))
+
+    out = [
+        InModelEffect("dwell_stiction", ("dwell",), ("A",), (-0.9,), (5.0,),
+                      tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.5, 3.0) for s0 in (0.005, 0.02, 0.08)),
+                      dwell),
+        InModelEffect("position_friction", ("position",), ("A1", "A2"), (-3.0, -3.0), (3.0, 3.0), ({},), position),
+        InModelEffect("pretension_relaxation", ("time",), ("D",), (-0.9,), (5.0,),
+                      tuple({"tau_r_s": t} for t in (2.0, 10.0, 50.0, 250.0)), relax),
+        InModelEffect("load_friction", ("load",), ("CL",), (-0.9,), (5.0,), ({},), load),
+        InModelEffect("speed_viscous", ("velocity",), ("C2_Nms2_rad2",), (0.0,), (math.inf,), ({},), speed),
+        InModelEffect("sensor_latency", ("latency",), (), (), (),
+                      tuple({"lag_s": sg * m / 1000.0} for m in LAGS_MS for sg in (1, -1)), latency),
+    ]
+    out = [e for e in out if not any(d in excluded for d in e.depends_on)]
+    for name in empirical:
+        x = train.signal(name)
+        if name in excluded or x is None or name == "deflection":
+            continue
+        kn = knots_for(x, N_KNOTS)
+        if kn is None:
+            continue
+        k = kn.size
+
+        def emp(s: Signals, sh: dict, c: np.ndarray, name: str = name, kn: np.ndarray = kn) -> Mods:
+            xs = s.signal(name)
+            assert xs is not None
+            H = hat_basis(xs, kn)
+            return Mods(cap_scale=1.0 + H @ c[:kn.size], drive_Nm=refs.drive_scale_Nm * (H @ c[kn.size:]))
+
+        out.append(InModelEffect(f"empirical:{name}", (name,), tuple(f"g_{i}" for i in range(k)) +
+                                 tuple(f"h_{i}" for i in range(k)), (-0.9,) * k + (-2.0,) * k, (5.0,) * k + (2.0,) * k,
+                                 ({},), emp, empirical=True, knots=kn))
+    return out
+
+
+@dataclass
+class JointFit:
+    """The baseline refitted with a set of in-model effects."""
+
+    base: np.ndarray
+    effects: list[tuple[InModelEffect, dict, np.ndarray]] = field(default_factory=list)
+
+    def mods(self, sig: Signals) -> Mods:
+        return _merge([e.mods(sig, sh, c) for e, sh, c in self.effects], len(sig))
+
+
+class InModelCloser:
+    """Joint refits of the dynamic baseline with in-model effects on fixed train/test runs."""
+
+    def __init__(self, dyn: DynamicFit, train: Signals, test: Signals) -> None:
+        self.dyn, self.train, self.test = dyn, train, test
+        self.form = dyn.spec.form
+        self.y, self.yt = _target(train, dyn.spec), _target(test, dyn.spec)
+        v95 = _velocity_scale(train, self.form)
+        p0, lo, hi, fixed = _initial(train, dyn.spec, v95)
+        self.free = np.array([not f for f in fixed])
+        self.lo, self.hi = lo[self.free], hi[self.free]
+        self.p_fixed = np.array([dyn.params[n] for n in dyn.params])
+
+    def _full(self, pf: np.ndarray) -> np.ndarray:
+        p = self.p_fixed.copy()
+        p[self.free] = pf
+        return p
+
+    def predict(self, jf: JointFit, test: bool = True) -> np.ndarray:
+        sig = self.test if test else self.train
+        return _predict(self.form, jf.base, sig, self.dyn.declared_env, jf.mods(sig))[0]
+
+    def refit(self, current: JointFit, eff: InModelEffect | None, shape: dict, base_free: bool = True,
+              max_nfev: int = MAX_NFEV) -> JointFit:
+        """Fit ``eff`` (at ``shape``) with the current model's effects, the baseline's free
+        parameters too when ``base_free``; the other effects' coefficients stay."""
+        k = len(eff.coef_names) if eff is not None else 0
+        pf0 = current.base[self.free]
+        c0 = np.zeros(k)
+        held: JointFit | None = None
+        if base_free and k:
+            # the effect alone first (the baseline held), then everything from there: the
+            # joint problem's stick-slip switching makes a cold joint start stall
+            held = self.refit(current, eff, shape, base_free=False, max_nfev=max_nfev)
+            c0 = held.effects[-1][2]
+        x0 = np.concatenate([pf0 if base_free else [], c0])
+        lo = np.concatenate([self.lo if base_free else [], np.array(eff.lo if eff else ())])
+        hi = np.concatenate([self.hi if base_free else [], np.array(eff.hi if eff else ())])
+        x0 = np.clip(x0, lo, hi)
+        nb = pf0.size if base_free else 0
+
+        def model(x: np.ndarray) -> JointFit:
+            base = self._full(x[:nb]) if base_free else current.base
+            effs = list(current.effects) + ([(eff, shape, x[nb:])] if eff is not None else [])
+            return JointFit(base, effs)
+
+        def resid(x: np.ndarray) -> np.ndarray:
+            return self.predict(model(x), test=False) - self.y
+
+        if x0.size == 0:
+            return model(x0)
+        if not base_free:
+            # a few coefficients of an effect on a held baseline: derivative-free (Powell). The
+            # output error of a stick-slip simulation is piecewise smooth with steep pieces
+            # (a changed breakaway moves the held state for the rest of the run), where a
+            # finite-difference trust region stalls at its start
+            opt = minimize(lambda x: float(np.sum(resid(x) ** 2)), x0, method="Powell",
+                           bounds=list(zip(lo, hi)), options={"maxfev": max_nfev * (k + 1), "xtol": 1e-3,
+                                                              "ftol": 1e-4})
+            return model(opt.x)
+        scale = np.concatenate([np.maximum(np.abs(pf0), 1e-6) if base_free else [], np.full(k, 0.1)])
+        res = least_squares(resid, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-2, max_nfev=max_nfev)
+        joint = model(res.x)
+        if held is not None:
+            r_h = self.predict(held, test=False) - self.y
+            if float(np.dot(r_h, r_h)) <= 2.0 * res.cost:
+                return held
+        return joint
+
+    def best_shape(self, current: JointFit, eff: InModelEffect) -> dict:
+        """The grid shape with the lowest training SSE, the baseline held (lag: refined to
+        whole samples between its grid neighbours)."""
+        if len(eff.grid) == 1:
+            return eff.grid[0]
+        scored = []
+        for sh in eff.grid:
+            jf = self.refit(current, eff, sh, base_free=False, max_nfev=SHAPE_NFEV)
+            r = self.predict(jf, test=False) - self.y
+            scored.append((float(np.dot(r, r)), sh))
+        return min(scored, key=lambda s: s[0])[1]
+
+    def describe(self, eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float) -> dict | None:
+        if not eff.empirical or eff.knots is None:
+            return None
+        k = eff.knots.size
+        d = describe_curve(eff.depends_on[0], eff.knots, np.concatenate([coef[k:] * drive_Nm, coef[:k] * tau_fc_Nm]))
+        d["knots"] = eff.knots.tolist()
+        d["curve"] = (coef[k:] * drive_Nm).tolist() + (coef[:k] * tau_fc_Nm).tolist()
+        return d

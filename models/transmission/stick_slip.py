@@ -1,0 +1,156 @@
+"""The reduced model's torsional unit with friction as a state (paper eqs 14-21, eq 20 in
+output-error form): stick holds the elastic state, breakaway happens where the friction
+capacity is exceeded.
+
+Every driving form of the closure (see :mod:`capstan.models.closure.dynamic_baseline`) reduces
+to one scalar state ``x`` [rad] -- the sheath node of the torsional unit, or the output
+angle on the testbed -- whose velocity ``v`` obeys the torque balance::
+
+    c0 v + f + b_vis v = a(t) - kx x,          f = friction torque carried by the sheath [Nm]
+
+The friction torque is a state of its own (elasto-plastic, Dahl form)::
+
+    df/dt = k_pre (v - |v| f / F(v)),   F(v) = tau_fc [1 + (zeta_s - 1) exp(-(v / eta_s)^2)]
+
+* stick: while ``|f|`` is below the capacity ``F`` the sheath holds the elastic state with
+  the presliding stiffness ``k_pre`` (``v = 0`` whenever the demanded friction does not
+  change; as ``k_pre -> inf`` this is the set-valued Coulomb stick of a rigid node);
+* breakaway where the demanded friction exceeds the capacity: ``f`` saturates at
+  ``+-F(v)``, the eq-21 Stribeck-Coulomb law (``zeta_c = 1``) with the sign of the motion
+  in place of the tanh (the state carries the stick phase the tanh only approximates).
+
+Backward Euler over each sample interval ``dt``: the new velocity solves
+``(c0 + kx dt + b_vis) v + f_new(v) = a_i - kx x_{i-1}`` with
+``f_new = (f + k_pre dt v) / (1 + k_pre dt |v| / F(v))`` (a bracketed Newton iteration
+started at the previous velocity, so a Stribeck dip keeps the branch the motion is on).
+``c0 + kx dt + b_vis > 0`` is required (a stiffness or a damping in every form).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+#: Newton iterations per slipping sample (the bracket halves at worst)
+MAX_ITER = 60
+
+
+@njit(cache=True)
+def capacity_Nm(v_rad_s: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float) -> float:
+    """Friction capacity at speed ``v``: ``tau_fc [1 + (zeta_s - 1) exp(-(v/eta_s)^2)]`` [Nm] (eq 21, zeta_c = 1)."""
+    x = v_rad_s / eta_s_rad_s
+    return tau_fc_Nm * (1.0 + (zeta_s - 1.0) * math.exp(-x * x))
+
+
+@njit(cache=True)
+def friction_update(f_Nm: float, v_rad_s: float, dt_s: float, k_pre_Nm_rad: float, tau_fc_Nm: float,
+                    zeta_s: float, eta_s_rad_s: float) -> float:
+    """Friction state after one backward-Euler step at velocity ``v`` [Nm].
+
+    ``df = k_pre (v - |v| f / F(v)) dt``: elastic (stick) with stiffness ``k_pre`` while
+    ``|f|`` is well below the capacity ``F``, saturating at ``+-F`` in slip.
+    """
+    F = capacity_Nm(v_rad_s, tau_fc_Nm, zeta_s, eta_s_rad_s)
+    if not F > 0.0:
+        return 0.0
+    return (f_Nm + k_pre_Nm_rad * dt_s * v_rad_s) / (1.0 + k_pre_Nm_rad * dt_s * abs(v_rad_s) / F)
+
+
+@njit(cache=True)
+def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: float, dt_s: float,
+                  k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
+                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0) -> float:
+    """Velocity of one backward-Euler step [rad/s]: the root of
+    ``c v + f_new(v) + b_vis v + c2 v |v| = rhs`` (``f_new`` by :func:`friction_update` from
+    ``f``; ``c2 >= 0`` a drag growing with speed).
+
+    Bracketed by ``(rhs -/+ M) / (c + b_vis)`` with ``M = max(|f|, zeta_s tau_fc)``; Newton
+    steps (derivative without the Stribeck slope) safeguarded by bisection, started at the
+    previous velocity. Returns NaN if ``c + b_vis <= 0``.
+    """
+    ct = c_Nms_rad + b_vis_Nms_rad
+    if not ct > 0.0:
+        return math.nan
+    M = max(abs(f_Nm), zeta_s * tau_fc_Nm)
+    lo = (rhs_Nm - M) / ct
+    hi = (rhs_Nm + M) / ct
+    if hi - lo <= 0.0:
+        return lo
+    v = min(max(v_prev_rad_s, lo), hi)
+    scale = abs(rhs_Nm) + M + 1e-12
+    kd = k_pre_Nm_rad * dt_s
+    for _ in range(MAX_ITER):
+        F = capacity_Nm(v, tau_fc_Nm, zeta_s, eta_s_rad_s)
+        den = 1.0 + kd * abs(v) / F if F > 0.0 else math.inf
+        fn = (f_Nm + kd * v) / den if F > 0.0 else 0.0
+        g = ct * v + c2_Nms2_rad2 * v * abs(v) + fn - rhs_Nm
+        if abs(g) <= 1e-10 * scale:
+            return v
+        if g < 0.0:
+            lo = v
+        else:
+            hi = v
+        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v)
+        if F > 0.0:
+            sg = 1.0 if v >= 0.0 else -1.0
+            dg += (kd * den - (f_Nm + kd * v) * kd * sg / F) / (den * den)
+        v_new = v - g / dg if dg > 0.0 else 0.5 * (lo + hi)
+        if not (lo < v_new < hi):
+            v_new = 0.5 * (lo + hi)
+        if hi - lo <= 1e-15 * (1.0 + abs(v)):
+            return v_new
+        v = v_new
+    return v
+
+
+@njit(cache=True)
+def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad: np.ndarray, c0_Nms_rad: np.ndarray,
+                  kx_Nm_rad: np.ndarray, k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
+                  b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray,
+                  cap_scale: np.ndarray, c2_Nms2_rad2: float = 0.0) -> int:
+    """Integrate the unit through concatenated runs (allocation-free).
+
+    :param t_s: sample times [s] (increasing inside each run).
+    :param a_Nm: driving torque ``a(t)`` per sample [Nm].
+    :param starts: first index of each run, then the total length (``len(runs) + 1``).
+    :param x0_rad: state at the first sample of each run [rad] (at rest there, no friction).
+    :param c0_Nms_rad: damping ``c0`` of each run [Nm s/rad].
+    :param kx_Nm_rad: stiffness ``kx`` of each run [Nm/rad].
+    :param cap_scale: per-sample multiplier of the capacity ``tau_fc`` (effects acting on the
+        friction: dwell, position, time, load), > 0; an empty array means 1 everywhere.
+    :param c2_Nms2_rad2: drag ``c2 v |v|`` at speed [Nm s^2/rad^2].
+    :returns: the number of samples integrated (``len(t_s)`` unless a step failed: NaN
+        velocity, non-increasing time).
+    """
+    has_scale = cap_scale.shape[0] == t_s.shape[0]
+    for k in range(starts.shape[0] - 1):
+        a0 = starts[k]
+        b0 = starts[k + 1]
+        if b0 <= a0:
+            continue
+        x = x0_rad[k]
+        c0 = c0_Nms_rad[k]
+        kx = kx_Nm_rad[k]
+        v = 0.0
+        f = 0.0
+        out_x_rad[a0] = x
+        out_v_rad_s[a0] = 0.0
+        out_f_Nm[a0] = 0.0
+        for i in range(a0 + 1, b0):
+            dt = t_s[i] - t_s[i - 1]
+            if not dt > 0.0:
+                return i
+            c = c0 + kx * dt
+            tfc = tau_fc_Nm * cap_scale[i] if has_scale else tau_fc_Nm
+            v = step_velocity(a_Nm[i] - kx * x, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
+                              b_vis_Nms_rad, c2_Nms2_rad2)
+            if not math.isfinite(v):
+                return i
+            f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s)
+            x = x + dt * v
+            out_x_rad[i] = x
+            out_v_rad_s[i] = v
+            out_f_Nm[i] = f
+    return t_s.shape[0]

@@ -1,0 +1,109 @@
+"""Evidence from another model family: ``capstan close`` on testbed runs of the distributed
+model (N = 12, double-bend non-uniform curvature, eq-23 pretension field, noise 0.02 Nm on
+the torques and 1e-3 rad/s on dq_out, all four fixture tensions as channels), training and
+held-out runs in different environments (k_out 20 / 35 Nm/rad), with effects injected
+into *that* physics in forms other than the closure catalogue's (tests/closure_plants.py):
+
+* bending that grows with the joint angle (node friction x (1 + 3 |q_out|));
+* creep of the pretension (every segment -60 N (1 - exp(-t / 15 s)));
+* the output torque sensor 20 ms late;
+and three the catalogue does not have:
+* an eccentric input pulley (the cable sees the drive torque x (1 + 0.08 sin(3 q_in + 0.5)));
+* a gain error of the input load cell (+6 %);
+* direction-dependent sheath friction (node friction x 1.3 while dq_out > 0).
+
+Clean runs: baseline held-out RMSE <= 0.05 Nm and nothing selected. Each effect: the
+first selected explanation depends on the injected mechanism's signal, and the held-out
+RMSE falls by >= 30 %. Effects the closure does not yet meet that bar on are marked
+``xfail(strict=True)`` with the measured figures, so a fix shows up as an XPASS.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from capstan.models.closure.effects import Target
+from capstan.models.closure.pipeline import ClosureResult, close
+from capstan.models.closure.signals import signals_from_tables
+
+from closure_plants import Injection, distributed_run
+
+pytestmark = pytest.mark.slow
+
+SECONDS = 15.0
+
+
+def _shift(x: np.ndarray, k: int) -> np.ndarray:
+    return np.concatenate([np.full(k, x[0]), x[:-k]])
+
+
+def _late_tau_out(cols: dict) -> None:
+    cols["tau_out"] = _shift(cols["tau_out"], 20)
+
+
+def _gain_tau_in(cols: dict) -> None:
+    cols["tau_in"] = 1.06 * cols["tau_in"]
+
+
+INJECT = {
+    "none": Injection(),
+    "bending_with_angle": Injection(mu=lambda t, m, s: np.full(2 * m.n, 1.0 + 3.0 * abs(m.q_out_rad))),
+    "pretension_creep": Injection(creep=lambda t: -60.0 * (1.0 - np.exp(-t / 15.0))),
+    "late_tau_out": Injection(post=_late_tau_out),
+    "eccentric_input": Injection(u=lambda t, m, s: 1.0 + 0.08 * np.sin(3.0 * m.q_in_rad + 0.5)),
+    "load_cell_gain": Injection(post=_gain_tau_in),
+    "direction_asymmetry": Injection(mu=lambda t, m, s: np.full(2 * m.n, 1.3 if m.dq_out_rad_s > 0 else 1.0)),
+}
+
+#: injected effect -> the signals an explanation may name (the mechanism's own)
+SIGNAL = {
+    "bending_with_angle": {"position"},
+    "pretension_creep": {"time"},
+    "late_tau_out": {"latency"},
+    "eccentric_input": {"position", "q_in"},
+    "load_cell_gain": {"load"},
+    "direction_asymmetry": {"velocity"},
+}
+
+#: measured shortfalls (see the module docstring)
+SHORT: dict[str, str] = {
+    "eccentric_input": "measured 2026-11-26: selected pretension_relaxation (time) first, then position_friction "
+                       "and load_friction (baseline 0.080 Nm held-out). The position form is the right mechanism "
+                       "but a run-time capacity change explains as much on 15 s runs",
+    "late_tau_out": "measured 2026-11-26: traced to sensor_latency first (right), held-out 0.0473 -> 0.0346 Nm "
+                    "(-26.7 %, bar 30 %); the clean floor of these runs is 0.025-0.028 Nm",
+    "direction_asymmetry": "measured 2026-11-26: baseline 0.200 Nm held-out, not traced to velocity with a 30 % "
+                           "cut; no catalogued form is direction-dependent",
+}
+
+
+@lru_cache(maxsize=None)
+def run(effect: str) -> ClosureResult:
+    inj = INJECT[effect]
+    tr, _ = distributed_run(SECONDS, seed=1, k_out=20.0, b_out=2.0, source="train", inject=inj)
+    te, _ = distributed_run(SECONDS, seed=2, k_out=35.0, b_out=1.5, source="test", inject=inj)
+    sig = signals_from_tables([tr, te])
+    return close(sig.take(sig.run_id == 0), sig.take(sig.run_id == 1))
+
+
+def test_clean_runs_baseline_at_the_noise_floor_and_nothing_selected() -> None:
+    res = run("none")
+    r = res.targets[Target.TAU_OUT]
+    assert res.dynamic is not None and res.dynamic.fit.spec.target == "tau_out"
+    assert r.rmse_before_Nm <= 0.05
+    assert r.selected == [], [(c.effect, c.improvement, c.ci_low) for c in r.selected]
+    # the output tensions measure tau_out: never candidates
+    assert {"T_up_out", "T_lo_out"} <= set(res.dynamic.excluded)
+
+
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=SHORT[e]))
+                                    if e in SHORT else e for e in sorted(SIGNAL)])
+def test_injected_effect_is_traced_to_its_signal_and_cuts_heldout_error(effect: str) -> None:
+    res = run(effect)
+    r = res.targets[Target.TAU_OUT]
+    assert r.selected, f"{effect}: nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
+    assert set(r.selected[0].depends_on) & SIGNAL[effect], [(c.effect, c.depends_on) for c in r.selected]
+    assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
