@@ -218,7 +218,8 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
 
     rep = tmp_path / "close"
     res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "close", out["log_path"], "--report", str(rep),
-                          "--json", "--no-progress"], cwd=REPO, capture_output=True, text=True, timeout=600)
+                          "--json", "--no-progress", "--baseline", "static"],   # link output: see e2e_closure.run_close
+                         cwd=REPO, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     summary = json.loads(res.stdout)
     assert summary["selected"], "nothing selected on a run with a strong injected effect"

@@ -131,8 +131,10 @@ def run_close(log_path: str, out: Path) -> dict[str, Any]:
 
     :raises CapstanError: if the command fails (its stderr tail in the message).
     """
+    # a daemon log's output is the link (hand + gravity), a driving form the dynamic baseline
+    # does not simulate yet: the static friction-on-velocity baseline is used here
     cmd = [sys.executable, "-m", "capstan.tools.cli", "close", log_path, "--report", str(out / "close"), "--json",
-           "--no-progress"]
+           "--no-progress", "--baseline", "static"]
     _log("close: " + " ".join(cmd[1:]))
     p = subprocess.run(cmd, capture_output=True, text=True)
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
