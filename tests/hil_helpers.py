@@ -11,8 +11,10 @@ stall that happens three times in a row, still fails the test.
 from __future__ import annotations
 
 import json
+import select
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 from typing import Any, Callable
@@ -68,3 +70,25 @@ def run_hil(config: Path, duration_s: float, cwd: Path,
         return res, res.stdout
 
     return run_until_undisturbed(attempt, config)
+
+
+def wait_for_stderr(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> list[str]:
+    """Read ``proc``'s stderr lines until one contains ``needle``; returns the lines read.
+
+    :raises AssertionError: (after killing ``proc``) if the stream ends or ``timeout_s``
+        passes first, with the last lines read.
+    """
+    lines: list[str] = []
+    end = time.monotonic() + timeout_s
+    assert proc.stderr is not None
+    while time.monotonic() < end:
+        ready, _, _ = select.select([proc.stderr], [], [], 1.0)
+        if ready:
+            line = proc.stderr.readline()
+            if not line:
+                break
+            lines.append(line)
+            if needle in line:
+                return lines
+    proc.kill()
+    raise AssertionError(f"{needle!r} not seen; stderr:\n" + "".join(lines[-30:]))

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from hil_helpers import wait_for_stderr
 from peer_rig import PeerRig
 from cia402_peer import Ds402
 
@@ -27,22 +27,6 @@ CONSUMER_TIMEOUT_S = 0.1      # config/hil.yaml motor.consumer_timeout_s
 
 def _argv(config: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "capstan.tools.cli", "run", "--config", str(config), *extra]
-
-
-def _wait_for(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> list[str]:
-    lines: list[str] = []
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        ready, _, _ = select.select([proc.stderr], [], [], 1.0)
-        if ready:
-            line = proc.stderr.readline()
-            if not line:
-                break
-            lines.append(line)
-            if needle in line:
-                return lines
-    proc.kill()
-    raise AssertionError(f"{needle!r} not seen; stderr:\n" + "".join(lines[-30:]))
 
 
 def _run_to_end(config: Path) -> tuple[subprocess.CompletedProcess, dict]:
@@ -81,7 +65,7 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
         proc = subprocess.Popen(_argv(config), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True)
         try:
-            _wait_for(proc, "armed after")
+            wait_for_stderr(proc, "armed after")
             time.sleep(0.5)
             assert peer.value(0x6007) == 1 and peer.value(0x1016, 1) == (127 << 16) | 100
             assert peer.value(0x6072) == 750                   # max_torque_Nm 15 of rated 20 Nm
@@ -107,7 +91,7 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
             proc = subprocess.Popen(_argv(config, "--json"), cwd=REPO, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
             try:
-                lines = _wait_for(proc, "armed after")
+                lines = wait_for_stderr(proc, "armed after")
                 time.sleep(0.5)
                 proc.send_signal(signal.SIGTERM)
                 out, err = proc.communicate(timeout=60)
@@ -130,7 +114,7 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
         proc = subprocess.Popen(_argv(config, "--duration", "2.5", "--json"), cwd=REPO, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         try:
-            lines = _wait_for(proc, "armed after")
+            lines = wait_for_stderr(proc, "armed after")
             with peer.lock:
                 peer.od[(0x6072, 0)].value = 1          # derated to 1 per mille behind the master's back
             out, err = proc.communicate(timeout=60)

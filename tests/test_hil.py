@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import signal
 import socket
 import subprocess
@@ -25,7 +24,7 @@ import yaml
 
 from capstan.controller.log.reader import read_log
 from capstan.tools.commands.run import EXIT_FAULT
-from hil_helpers import hil_argv, host_stalled, run_until_undisturbed, shortest_sensor_timeout_s
+from hil_helpers import hil_argv, host_stalled, run_until_undisturbed, shortest_sensor_timeout_s, wait_for_stderr
 
 REPO = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow
@@ -44,24 +43,6 @@ def hil_config(tmp_path: Path) -> Path:
 def _start(config: Path, duration_s: float, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(hil_argv(config, duration_s, *extra), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-
-
-def _wait_for(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> list[str]:
-    """Read stderr lines until one contains ``needle``; returns the lines read."""
-    lines: list[str] = []
-    end = time.monotonic() + timeout_s
-    assert proc.stderr is not None
-    while time.monotonic() < end:
-        ready, _, _ = select.select([proc.stderr], [], [], 1.0)
-        if ready:
-            line = proc.stderr.readline()
-            if not line:
-                break
-            lines.append(line)
-            if needle in line:
-                return lines
-    proc.kill()
-    raise AssertionError(f"{needle!r} not seen; stderr:\n" + "".join(lines[-30:]))
 
 
 def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path) -> None:
@@ -147,7 +128,7 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
 def test_sigterm_ramps_to_zero_and_closes_the_log(hil_config: Path) -> None:
     def attempt() -> tuple[subprocess.CompletedProcess, str]:
         proc = _start(hil_config, 60.0, "--json")
-        _wait_for(proc, "armed after")
+        wait_for_stderr(proc, "armed after")
         time.sleep(1.0)
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=60)
@@ -169,12 +150,12 @@ def test_sigterm_ramps_to_zero_and_closes_the_log(hil_config: Path) -> None:
 
 def test_sigkill_leaves_a_readable_log_and_the_drive_stops_itself(hil_config: Path) -> None:
     proc = _start(hil_config, 60.0)
-    _wait_for(proc, "armed after")
+    wait_for_stderr(proc, "armed after")
     time.sleep(1.5)
     t_kill = time.monotonic()
     os.kill(proc.pid, signal.SIGKILL)
     # the simulated drive sees the daemon's heartbeat stop and faults itself (torque off)
-    lines = _wait_for(proc, "heartbeat of node 127 lost", timeout_s=10.0)
+    lines = wait_for_stderr(proc, "heartbeat of node 127 lost", timeout_s=10.0)
     t_stop = time.monotonic()
     assert t_stop - t_kill < 1.0, "".join(lines[-10:])
     proc.wait(timeout=10)
@@ -195,7 +176,7 @@ def test_sigkill_leaves_a_readable_log_and_the_drive_stops_itself(hil_config: Pa
 def test_a_host_stall_longer_than_the_sensor_timeouts_faults_and_the_reason_says_so(hil_config: Path) -> None:
     # the whole machine held for 60 ms, as a hypervisor can: daemon and simulated rig stopped together
     proc = _start(hil_config, 60.0, "--json")
-    _wait_for(proc, "armed after")
+    wait_for_stderr(proc, "armed after")
     time.sleep(0.5)
     children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
     pids = [proc.pid, *map(int, children)]

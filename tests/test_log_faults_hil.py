@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import signal
 import subprocess
 import time
@@ -24,7 +23,7 @@ import yaml
 
 from capstan.controller.log.ring import remove_stale_rings, shm_dir
 from capstan.tools.cli import main
-from hil_helpers import hil_argv, host_stalled, shortest_sensor_timeout_s
+from hil_helpers import hil_argv, host_stalled, shortest_sensor_timeout_s, wait_for_stderr
 
 mcap_reader = pytest.importorskip("mcap.reader")
 decoder = pytest.importorskip("mcap_protobuf.decoder")
@@ -68,19 +67,6 @@ def _writer_pid(pid: int, timeout_s: float = 5.0) -> int:
         time.sleep(0.05)
 
 
-def _wait_for(proc: subprocess.Popen, needle: str, timeout_s: float = 90.0) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        ready, _, _ = select.select([proc.stderr], [], [], 1.0)
-        if ready:
-            line = proc.stderr.readline()
-            if not line:
-                break
-            if needle in line:
-                return
-    raise AssertionError(f"'{needle}' not seen")
-
-
 def _decode(logs: Path) -> tuple[list[int], list[dict]]:
     """Cycle numbers and events of every file, with the indexed reader + protobuf decoder."""
     cycles, events = [], []
@@ -112,7 +98,7 @@ def _kill_writer_run(tmp_path: Path, duration_s: float,
         d.mkdir()
         config = _config(d, **logging_extra)
         proc = _start(config, duration_s)
-        _wait_for(proc, "armed after")
+        wait_for_stderr(proc, "armed after")
         time.sleep(1.5)
         t_kill = time.monotonic()
         os.kill(_writer_pid(proc.pid), signal.SIGKILL)
@@ -148,7 +134,7 @@ def test_writer_loss_with_policy_stop_ramps_down_and_exits_3(tmp_path: Path) -> 
 
 def test_daemon_and_writer_killed_together_recover_and_stale_rings(tmp_path: Path, capsys) -> None:
     proc = _start(_config(tmp_path), 60.0)
-    _wait_for(proc, "armed after")
+    wait_for_stderr(proc, "armed after")
     time.sleep(1.5)
     kids = _children(proc.pid)
     writer = _writer_pid(proc.pid)

@@ -66,14 +66,20 @@ def shm_dir() -> Path:
     return p if p.is_dir() and os.access(p, os.W_OK) else Path(tempfile.gettempdir())
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """True if process ``pid`` exists and is not a zombie (a killed producer's pid stays a
+    zombie until its parent reaps it)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return True
 
 
 def remove_stale_rings(directory: str | Path | None = None) -> list[Path]:
@@ -91,7 +97,7 @@ def remove_stale_rings(directory: str | Path | None = None) -> list[Path]:
             pid = int(f.name.split("-")[2])
         except (IndexError, ValueError):
             continue
-        if pid <= 0 or _pid_alive(pid):
+        if pid <= 0 or pid_alive(pid):
             continue
         try:
             with open(f, "rb") as fh:

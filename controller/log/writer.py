@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import signal
 import subprocess
 import sys
@@ -28,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from capstan.controller.log.ring import LogRing
+from capstan.controller.log.ring import LogRing, pid_alive
 from capstan.controller.log.session import (EVENT_DTYPE, LIVE_ZSTD_LEVEL, META_DTYPE,  # noqa: F401 (re-exported)
                                             LogSession, LogWriterError)
 from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, EventKind, McapLog, stored_dtype
@@ -68,21 +67,6 @@ class _History:
         if t_max is not None and time_field:
             ordered = ordered[ordered[time_field] <= t_max]
         return ordered[-n:] if n > 0 else ordered[:0]
-
-
-def _alive(pid: int) -> bool:
-    """True if process ``pid`` exists and is not a zombie."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return True
 
 
 def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = None,
@@ -155,7 +139,7 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                 if cycle.available() == 0:
                     break
                 continue
-            if not _alive(producer):
+            if not pid_alive(producer):
                 why = f"producer pid {producer} died"
                 evs = events.read_batch() if events is not None else None
                 rest = cycle.read_batch()
@@ -263,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                zstd_level=args.zstd_level, meta=meta,
                drop_fields=tuple(f for f in args.drop_fields.split(",") if f),
                gap_after_cycle=args.gap_after_cycle, gap_reason=args.gap_reason, keep_bytes=args.keep_bytes)
-    orphaned = not _alive(args.parent_pid or cycle.producer_pid)
+    orphaned = not pid_alive(args.parent_pid or cycle.producer_pid)
     for ring in (cycle, events, stats, meta):
         if ring is not None:
             ring.close(unlink=orphaned)     # the producer cannot clean up after itself

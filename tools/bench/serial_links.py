@@ -22,6 +22,19 @@ import time
 import numpy as np
 
 
+class _ByteSink:
+    """A write-only port that keeps what the simulated device sends."""
+
+    in_waiting = 0
+
+    def __init__(self) -> None:
+        self.data = bytearray()
+
+    def write(self, b: bytes) -> int:
+        self.data += b
+        return len(b)
+
+
 def _devices(imu_fd: int, lc_fd: int, duration_s: float) -> None:
     from capstan.drivers.sim.serial_devices import SimLoadCellAmp, SimXsens
 
@@ -58,17 +71,7 @@ def _decode_only(n: int = 20000) -> None:
     from capstan.drivers.serial.xsens import XsensConfig, joint_from_mtdata2
     from capstan.drivers.serial.xsens_protocol import XbusParser, parse_mtdata2
 
-    class _Sink:
-        in_waiting = 0
-
-        def __init__(self) -> None:
-            self.data = bytearray()
-
-        def write(self, b: bytes) -> int:
-            self.data += b
-            return len(b)
-
-    sink = _Sink()
+    sink = _ByteSink()
     sim = SimXsens(sink)
     sim.emit(0.1, 0.2, 0.3)
     pkt = bytes(sink.data)
@@ -101,15 +104,7 @@ def _parser_paths(n: int = 4000, repeats: int = 7) -> None:
     from capstan.drivers.serial.xsens_protocol import Mid, XbusParser, mtdata2_max_len
     from capstan.drivers.sim.serial_devices import SimXsens
 
-    class _Sink:
-        def __init__(self) -> None:
-            self.data = bytearray()
-
-        def write(self, b: bytes) -> int:
-            self.data += b
-            return len(b)
-
-    sink = _Sink()
+    sink = _ByteSink()
     sim = SimXsens(sink)
     pkts = []
     for k in range(n):
