@@ -88,7 +88,7 @@ class XsensConfig:
     :ivar joint_axis: sensor axis aligned with the joint.
     :ivar sign: +1 or -1, joint direction relative to the sensor axis.
     :ivar offset_rad: joint angle when the twist about the axis is zero [rad].
-    :ivar timeout_s: wait for each acknowledgement [s].
+    :ivar timeout_s: wait for each acknowledgement [s], (0, 5].
     :ivar retries: attempts per handshake step (and rounds of the baud-rate search).
     :ivar baud_search: if the device does not answer at ``baudrate``, search the standard
         rates (115200 first), switch the device to ``baudrate`` and store it there.
@@ -133,7 +133,8 @@ class XsensConfig:
             joint_axis=JointAxis[get_choice(cfg, "joint_axis", ("x", "y", "z"), prefix, "z").upper()],
             sign=sign,
             offset_rad=get_float(cfg, "offset_rad", prefix, default=0.0),
-            timeout_s=get_float(cfg, "timeout_s", prefix, default=0.5, min_value=0.0, min_exclusive=True),
+            timeout_s=get_float(cfg, "timeout_s", prefix, default=0.5, min_value=0.0, max_value=5.0,
+                              min_exclusive=True),  # a real MTi answers in ms; longer hides a wrong rate
             retries=get_int(cfg, "retries", prefix, default=3, min_value=1),
             baud_search=get_bool(cfg, "baud_search", prefix, True),
         )

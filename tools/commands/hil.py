@@ -82,9 +82,12 @@ class RigProcess:
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
         line = self.proc.stdout.readline() if ready else ""
         if not line:
+            exited = ready                          # end of stream: the rig process ended
             self.stop()
-            raise DeviceTimeoutError(f"simulated rig did not start within {timeout_s} s "
-                                     f"(exit code {self.proc.returncode})")
+            if exited:
+                raise DeviceTimeoutError(f"simulated rig exited during start-up with code "
+                                         f"{self.proc.returncode} (its error is logged above)")
+            raise DeviceTimeoutError(f"simulated rig did not start within {timeout_s} s")
         return json.loads(line)
 
     def stop(self, timeout_s: float = 10.0) -> dict[str, Any]:
