@@ -79,10 +79,12 @@ def test_start_up_waits_for_a_drive_that_is_still_booting(rig, boot_s, caplog):
 
 
 def test_boot_timeout_is_named_and_start_can_be_called_again(rig):
-    peer, motor = rig(peer_kwargs={"boot_delay_s": 1.2}, boot_timeout_s=0.3)
+    # boot 10x the timeout: a test process held off the CPU between power-on and start() must
+    # not see the drive already booted
+    peer, motor = rig(peer_kwargs={"boot_delay_s": 3.0}, boot_timeout_s=0.3)
     with pytest.raises(DeviceTimeoutError, match=r"drive 3 did not boot within 0.3 s.*0x703.*0x583"):
         motor.start()
-    time.sleep(1.0)
+    time.sleep(3.0)
     motor.start()                                  # no "bus added to multiple Notifiers"
     assert motor.state == State402.OPERATION_ENABLED
 
