@@ -57,14 +57,26 @@ def _children(pid: int) -> dict[int, str]:
     return out
 
 
-def _writer_pid(pid: int, timeout_s: float = 5.0) -> int:
+def _writer_pid(pid: int, timeout_s: float = 5.0, must_exist: bool = True) -> int | None:
+    """The log writer among ``pid``'s children; None (``must_exist`` False) if ``pid`` has
+    already ended (a host stall can fault a run before the writer is killed)."""
     end = time.monotonic() + timeout_s
     while True:
         found = [p for p, cmd in _children(pid).items() if "capstan.controller.log.writer" in cmd]
-        if found or time.monotonic() > end:
-            assert found, f"no log writer among the children of {pid}: {_children(pid)}"
+        if found:
             return found[0]
+        if not must_exist and (not Path(f"/proc/{pid}/cmdline").exists() or _zombie(pid)):
+            return None
+        if time.monotonic() > end:
+            raise AssertionError(f"no log writer among the children of {pid}: {_children(pid)}")
         time.sleep(0.05)
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
 
 
 def _decode(logs: Path) -> tuple[list[int], list[dict]]:
@@ -101,10 +113,13 @@ def _kill_writer_run(tmp_path: Path, duration_s: float,
         wait_for_stderr(proc, "armed after")
         time.sleep(1.5)
         t_kill = time.monotonic()
-        os.kill(_writer_pid(proc.pid), signal.SIGKILL)
+        writer = _writer_pid(proc.pid, must_exist=False)
+        if writer is not None:
+            os.kill(writer, signal.SIGKILL)
         out, err = proc.communicate(timeout=120)
         summary = json.loads(out)
         if not host_stalled(summary, shortest_sensor_timeout_s(config)):
+            assert writer is not None, f"the run ended before its writer could be killed: {summary}\n{err[-3000:]}"
             break
     return proc.returncode, summary, err, time.monotonic() - t_kill, d
 
