@@ -36,8 +36,11 @@ def host_stalled(summary: dict[str, Any], timeout_s: float) -> bool:
     :param summary: the JSON summary of ``capstan hil --json``.
     :param timeout_s: the shortest sensor timeout of the run's config [s].
     """
-    return (bool(summary.get("faults")) and summary.get("fault_gap_s", 0.0) >= timeout_s
-            and summary.get("plant", {}).get("lost_s", 0.0) > 0.0)
+    faults = summary.get("faults") or []
+    # the daemon names a host stall itself when its loop had not run for > 5 periods before
+    # the faulted cycle; a gap of a whole sensor timeout is one whatever the text says
+    stalled = summary.get("fault_gap_s", 0.0) >= timeout_s or any("host stall" in f for f in faults)
+    return bool(faults) and stalled and summary.get("plant", {}).get("lost_s", 0.0) > 0.0
 
 
 def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProcess, str]], config: Path,
