@@ -102,6 +102,13 @@ class TorqueLoop(IntEnum):
     LDO = 1
 
 
+class AccelerationSource(IntEnum):
+    """Where the inertia compensation takes its acceleration from."""
+
+    MOTOR = 0       # the drive's motor velocity, differentiated every cycle
+    LINK = 1        # the IMU's rate of turn, differentiated on each new sample (400 Hz)
+
+
 class Placement(IntEnum):
     """Where the friction feedforward enters."""
 
@@ -136,6 +143,12 @@ class FeedbackGains:
     derivative_cutoff_hz: float = 40.0
     ki_1_s: float = 0.15
     integral_limit_Nm: float = 5.0
+    #: inertia compensation: ``+ inertia_comp_kg_m2 * a_m`` on the command, ``a_m`` the motor
+    #: acceleration from the drive's velocity, differentiated and low-passed at
+    #: ``acceleration_cutoff_hz``; the loop sees ``J_m - inertia_comp_kg_m2`` [kg m^2] (0 = off)
+    inertia_comp_kg_m2: float = 0.0
+    acceleration_cutoff_hz: float = 10.0
+    acceleration_source: AccelerationSource = AccelerationSource.LINK
 
 
 @dataclass(frozen=True)
@@ -239,7 +252,8 @@ class ControllerConfig:
 
         p = f"{prefix}.feedback"
         c = section(cfg, "feedback", prefix, required=False)
-        reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm"}, p)
+        reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
+                           "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source"}, p)
         fd = d.feedback
         fb = FeedbackGains(
             get_float(c, "kp", p, fd.kp, min_value=0.0),
@@ -247,7 +261,12 @@ class ControllerConfig:
             get_float(c, "derivative_cutoff_hz", p, fd.derivative_cutoff_hz, min_value=0.0,
                       min_exclusive=True, max_value=0.45 * nyq),
             get_float(c, "ki_1_s", p, fd.ki_1_s, min_value=0.0),
-            get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0))
+            get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0),
+            get_float(c, "inertia_comp_kg_m2", p, fd.inertia_comp_kg_m2, min_value=0.0),
+            get_float(c, "acceleration_cutoff_hz", p, fd.acceleration_cutoff_hz, min_value=0.0,
+                      min_exclusive=True, max_value=0.45 * nyq),
+            AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
+                                          fd.acceleration_source.name.lower()).upper()])
 
         p = f"{prefix}.filters"
         c = section(cfg, "filters", prefix, required=False)
@@ -269,6 +288,16 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
+        j_min = plant.motor_inertia_kg_m2 * (1.0 - stab.inertia_tolerance)
+        what = "J_m (1 - inertia_tolerance)"
+        if fb.acceleration_source == AccelerationSource.LINK:     # motor and link move together
+            j_min += stab.link_inertia_kg_m2
+            what += " + stability.link_inertia_kg_m2"
+        if fb.inertia_comp_kg_m2 >= j_min:
+            raise ConfigError(f"{prefix}.feedback.inertia_comp_kg_m2",
+                              f"must be below the smallest inertia the loop is checked for, {what} = "
+                              f"{j_min:.3f} kg m^2 (the joint would feel no or negative inertia and run "
+                              f"away), got {fb.inertia_comp_kg_m2}")
         return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab,
                                 q_out_blend_hz=blend_hz)
 
@@ -281,7 +310,8 @@ class ControllerConfig:
             "torque_loop": self.torque_loop.name.lower(),
             "plant": asdict(self.plant),
             "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
-            "feedback": asdict(self.feedback),
+            "feedback": {**asdict(self.feedback),
+                         "acceleration_source": self.feedback.acceleration_source.name.lower()},
             "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz, "q_out_blend_hz": self.q_out_blend_hz},
             "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
             "feedforward": {
