@@ -261,7 +261,9 @@ def test_inertia_compensation_poles_agree_with_the_step(fb, p, grows):
     """The analysis's closed loop with the inertia compensation (its acceleration filter, the
     IMU's 400 Hz sample-and-hold modelled as one extra cycle) predicts what the compiled step
     does against a physical plant: growth per window as the dominant pole says, or decay."""
-    cfg = ControllerConfig.from_mapping(_quiet({"feedback": fb}))
+    m = _quiet({"feedback": fb})
+    m["feedforward"]["dead_band_rad_s"] = 0.0       # rest gate open: the linear loop the analysis has
+    cfg = ControllerConfig.from_mapping(m)
     poles = closed_loop_poles(cfg, p, 2)
     rho = float(np.max(np.abs(poles)))
     assert (rho > 1.0) == grows
@@ -288,3 +290,33 @@ def test_inertia_compensation_margins_and_its_limit():
         ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": j_min}})
     with pytest.raises(ConfigError, match="acceleration_source"):
         ControllerConfig.from_mapping({"feedback": {"acceleration_source": "wheel"}})
+
+
+def test_inertia_compensation_is_off_at_rest():
+    """At rest (joint rate inside the feedforward's rest band) the differentiated gyro noise
+    does not reach the command: the same noisy run with and without J_c commands the same."""
+    rng = np.random.default_rng(3)
+    cmds = []
+    for jc in (0.0, 0.2):
+        ctl = Controller(ControllerConfig.from_mapping(_quiet({"feedback": {"inertia_comp_kg_m2": jc}})))
+        r = ctl.record[0]
+        noise = rng.normal(0.0, 2e-3, 4000) if jc == 0.0 else noise
+        out = []
+        for k in range(4000):
+            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+            r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+            r["dq_out_rad_s"] = noise[k]
+            out.append(ctl.step())
+        cmds.append(np.array(out))
+    assert np.array_equal(cmds[0], cmds[1])
+    # and the gate opens in motion: a ramp in the joint rate gives J_c x the acceleration
+    ctl = Controller(ControllerConfig.from_mapping(_quiet({"feedback": {"inertia_comp_kg_m2": 0.2}})))
+    r = ctl.record[0]
+    for k in range(3000):
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+        r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+        r["dq_out_rad_s"] = 0.05 + 2.0 * k * 1e-3          # 2 rad/s^2
+        u = ctl.step()
+    assert u == pytest.approx(0.2 * 2.0, rel=1e-3)

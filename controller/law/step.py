@@ -28,7 +28,9 @@ Control law (per cycle, ``k``)::
     both: tau_m += J_c A[dq_m]     inertia compensation (feedback.inertia_comp_kg_m2): A the
                                    motor velocity's backward difference / dt through a 1st-order
                                    low-pass (feedback.acceleration_cutoff_hz); the loop then
-                                   sees J_m - J_c (controller/law/loop_model.py checks it)
+                                   sees J_m - J_c (controller/law/loop_model.py checks it);
+                                   x the feedforward's rest gate on dq_out: the differentiated
+                                   gyro noise (~0.2 rad/s^2 after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -126,7 +128,8 @@ S_V_PREV = S_FF_OUT + 1    # previous velocity sample [rad/s] (acceleration esti
 S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
 S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
-N_STATE = S_ACC_N + 1
+S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
+N_STATE = S_ACC_GATE + 1
 
 
 @njit(cache=True)
@@ -154,6 +157,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC] = 0.0
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
+        st[S_ACC_GATE] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -206,7 +210,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
-    if cfg[C_JC] != 0.0:     # inertia compensation: J_c a, a the low-passed difference quotient
+    if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
+        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise)
+            st[S_ACC_GATE] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         if cfg[C_ACC_LINK] != 0.0:
             st[S_ACC_N] += 1.0
             if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
@@ -216,7 +222,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         else:
             st[S_ACC_RAW] = (r.dq_m_rad_s - st[S_V_PREV]) / cfg[C_DT]
             st[S_V_PREV] = r.dq_m_rad_s
-        tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_RAW])
+        tau_raw += st[S_ACC_GATE] * cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_RAW])
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
