@@ -21,6 +21,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
+        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
+        acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
+        acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
@@ -146,8 +149,8 @@ class FeedbackGains:
     #: inertia compensation: ``+ inertia_comp_kg_m2 * a_m`` on the command, ``a_m`` the motor
     #: acceleration from the drive's velocity, differentiated and low-passed at
     #: ``acceleration_cutoff_hz``; the loop sees ``J_m - inertia_comp_kg_m2`` [kg m^2] (0 = off)
-    inertia_comp_kg_m2: float = 0.0
-    acceleration_cutoff_hz: float = 10.0
+    inertia_comp_kg_m2: float = 0.2
+    acceleration_cutoff_hz: float = 5.0
     acceleration_source: AccelerationSource = AccelerationSource.LINK
 
 
