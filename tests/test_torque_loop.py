@@ -263,6 +263,7 @@ def test_inertia_compensation_poles_agree_with_the_step(fb, p, grows):
     does against a physical plant: growth per window as the dominant pole says, or decay."""
     m = _quiet({"feedback": fb})
     m["feedforward"]["dead_band_rad_s"] = 0.0       # rest gate open: the linear loop the analysis has
+    m["stability"] = {"gyro_noise_rad_s": 0.0}      # (allowed only for a noiseless gyro)
     cfg = ControllerConfig.from_mapping(m)
     poles = closed_loop_poles(cfg, p, 2)
     rho = float(np.max(np.abs(poles)))
@@ -288,6 +289,10 @@ def test_inertia_compensation_margins_and_its_limit():
     j_min = 0.73 * (1 - ok.stability.inertia_tolerance) + ok.stability.link_inertia_kg_m2
     with pytest.raises(ConfigError, match="inertia_comp_kg_m2"):
         ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": j_min}})
+    with pytest.raises(ConfigError, match="dead_band_rad_s"):      # no rest band: gyro noise on the command
+        ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0}})
+    ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
+                                   "feedback": {"inertia_comp_kg_m2": 0.0}})
     with pytest.raises(ConfigError, match="acceleration_source"):
         ControllerConfig.from_mapping({"feedback": {"acceleration_source": "wheel"}})
 
