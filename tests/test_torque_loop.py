@@ -325,3 +325,27 @@ def test_inertia_compensation_is_off_at_rest():
         r["dq_out_rad_s"] = 0.05 + 2.0 * k * 1e-3          # 2 rad/s^2
         u = ctl.step()
     assert u == pytest.approx(0.2 * 2.0, rel=1e-3)
+
+
+def test_acceleration_filter_is_the_step():
+    """A(z) of the analysis reproduces the compiled step's response to a motor-velocity pulse
+    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m."""
+    from capstan.controller.law.loop_model import acceleration_filter
+    m = _quiet({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 7.0, "acceleration_source": "motor",
+                             "ki_1_s": 0.0}})
+    m["feedforward"]["dead_band_rad_s"] = 0.0
+    m["stability"] = {"gyro_noise_rad_s": 0.0}
+    cfg = ControllerConfig.from_mapping(m)
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    v = np.zeros(300)
+    v[5] = 1e-2
+    u = np.zeros(len(v))
+    for k in range(len(v)):
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
+        r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["imu_new"] = 1
+        r["dq_m_rad_s"] = v[k]
+        u[k] = ctl.step()
+    a = acceleration_filter(cfg)
+    assert np.max(np.abs(u - 0.2 * signal.lfilter(a[0], a[1], v))) < 1e-9 * np.max(np.abs(u))
