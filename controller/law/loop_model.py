@@ -31,6 +31,7 @@ crossings refined by interpolation; closed-loop stability from the roots of
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -190,7 +191,9 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
 def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int, plant: TF | None = None) -> TF:
     """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)
     of ``plant`` (descending powers of s; default :func:`plant_continuous`)."""
-    num, den, _ = signal.cont2discrete(plant_continuous(p) if plant is None else plant, dt_s, method="zoh")
+    with warnings.catch_warnings():     # ZOH of a velocity leaves a ~1e-20 leading numerator term
+        warnings.simplefilter("ignore", signal.BadCoefficients)
+        num, den, _ = signal.cont2discrete(plant_continuous(p) if plant is None else plant, dt_s, method="zoh")
     num = np.trim_zeros(np.atleast_2d(num)[0], "f") if np.any(num) else np.zeros(1)
     den = np.atleast_1d(den)
     # descending powers of z -> ascending z^-1 with the relative degree as leading zeros
@@ -218,7 +221,9 @@ class _Block:
             self.A, self.B, self.C, self.D = (np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)),
                                               np.array([[num[0] / den[0] if n == 1 else 0.0]]))
         else:
-            self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
+            with warnings.catch_warnings():     # a leading zero (a pure delay) is stripped, not a problem
+                warnings.simplefilter("ignore", signal.BadCoefficients)
+                self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
         self.n = self.A.shape[0]
 
     def step(self, x: np.ndarray, u: float) -> tuple[float, np.ndarray]:
