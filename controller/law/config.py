@@ -91,6 +91,7 @@ from dataclasses import asdict, dataclass, field
 from enum import IntEnum
 from typing import Any, Mapping
 
+from capstan.controller.law.feedback_config import AccelerationSource, FeedbackGains, feedback_from_mapping
 from capstan.controller.law.learned_effects import check_entries
 from capstan.controller.law.stability_settings import StabilitySettings, stability_from_mapping
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
@@ -103,13 +104,6 @@ class TorqueLoop(IntEnum):
 
     PID = 0
     LDO = 1
-
-
-class AccelerationSource(IntEnum):
-    """Where the inertia compensation takes its acceleration from."""
-
-    MOTOR = 0       # the drive's motor velocity, differentiated every cycle
-    LINK = 1        # the IMU's rate of turn, differentiated on each new sample (400 Hz)
 
 
 class Placement(IntEnum):
@@ -135,23 +129,6 @@ class PlantNominal:
     motor_damping_Nms_rad: float = 0.5
     r_in_m: float = 0.04
     r_out_m: float = 0.04
-
-
-@dataclass(frozen=True)
-class FeedbackGains:
-    """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
-
-    kp: float = 0.0
-    kd_s: float = 0.0
-    derivative_cutoff_hz: float = 40.0
-    ki_1_s: float = 0.15
-    integral_limit_Nm: float = 5.0
-    #: inertia compensation: ``+ inertia_comp_kg_m2 * a_m`` on the command, ``a_m`` the motor
-    #: acceleration from the drive's velocity, differentiated and low-passed at
-    #: ``acceleration_cutoff_hz``; the loop sees ``J_m - inertia_comp_kg_m2`` [kg m^2] (0 = off)
-    inertia_comp_kg_m2: float = 0.2
-    acceleration_cutoff_hz: float = 5.0
-    acceleration_source: AccelerationSource = AccelerationSource.LINK
 
 
 @dataclass(frozen=True)
@@ -255,21 +232,7 @@ class ControllerConfig:
 
         p = f"{prefix}.feedback"
         c = section(cfg, "feedback", prefix, required=False)
-        reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
-                           "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source"}, p)
-        fd = d.feedback
-        fb = FeedbackGains(
-            get_float(c, "kp", p, fd.kp, min_value=0.0),
-            get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
-            get_float(c, "derivative_cutoff_hz", p, fd.derivative_cutoff_hz, min_value=0.0,
-                      min_exclusive=True, max_value=0.45 * nyq),
-            get_float(c, "ki_1_s", p, fd.ki_1_s, min_value=0.0),
-            get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0),
-            get_float(c, "inertia_comp_kg_m2", p, fd.inertia_comp_kg_m2, min_value=0.0),
-            get_float(c, "acceleration_cutoff_hz", p, fd.acceleration_cutoff_hz, min_value=0.0,
-                      min_exclusive=True, max_value=0.45 * nyq),
-            AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
-                                          fd.acceleration_source.name.lower()).upper()])
+        fb = feedback_from_mapping(c, p, d.feedback, nyq)
 
         p = f"{prefix}.filters"
         c = section(cfg, "filters", prefix, required=False)
