@@ -30,7 +30,7 @@ Control law (per cycle, ``k``)::
                                    low-pass (feedback.acceleration_cutoff_hz); the loop then
                                    sees J_m - J_c (controller/law/loop_model.py checks it);
                                    x the feedforward's rest gate on dq_out: the differentiated
-                                   gyro noise (~0.2 rad/s^2 after 5 Hz) stays off the command at rest
+                                   gyro noise (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
