@@ -210,3 +210,142 @@ def test_loop_command_prints_strict_json_and_fails_on_missed_margins(capsys, tmp
     assert main(["experiment", "loop", "--config", str(bad), "--json"]) == 1
     doc = json.loads(capsys.readouterr().out)
     assert not doc["ok"] and not doc["all_stable"]
+
+
+def _run_step_physical(cfg: ControllerConfig, p: PlantPoint, delay: int, n: int, imu_every: float = 2.5,
+                       kick_rad_s: float = 1e-2) -> np.ndarray:
+    """The real Numba step in closed loop with the physical-state ZOH plant (q_m, dq_m[, q_o, dq_o]):
+    load cells and the drive's velocity every cycle, the IMU's rate every ``imu_every`` cycles
+    (400 Hz), a command FIFO of ``delay`` cycles and a velocity kick at cycle 10.
+    Returns the motor velocity per cycle [rad/s]."""
+    from capstan.controller.law.loop_model import plant_state_space
+    a, b, c = plant_state_space(p, cfg.dt_s)
+    x = np.zeros(a.shape[0])
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    fifo = [0.0] * delay
+    out = np.zeros(n)
+    next_imu = 0.0
+    for k in range(n):
+        if k == 10:
+            x[1] += kick_rad_s
+            if p.slip:
+                x[3] += kick_rad_s
+        tau = float(c @ x)
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
+        r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
+        r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["dq_m_rad_s"] = x[1]
+        r["imu_new"] = 0
+        if k >= next_imu:
+            r["imu_new"] = 1
+            r["dq_out_rad_s"] = x[3] if p.slip else 0.0
+            next_imu += imu_every
+        fifo.append(ctl.step())
+        x = a @ x + b * fifo.pop(0)
+        out[k] = x[1]
+    return out
+
+
+@pytest.mark.parametrize("fb,p,grows", [
+    # motor acceleration: the sheath-stick mode (3300 Nm/rad) with J_m - J_c and the filter's lag rings
+    ({"inertia_comp_kg_m2": 0.3, "acceleration_cutoff_hz": 10.0, "acceleration_source": "motor"},
+     PlantPoint(3300.0, 0.51, 0.5), True),
+    # link acceleration (IMU at 400 Hz): the link's free pendulum mode, too much compensation
+    ({"inertia_comp_kg_m2": 0.6, "acceleration_cutoff_hz": 5.0}, PlantPoint(200.0, 0.51, 0.5, slip=True), True),
+    # ... and the shipped amount on the same point
+    ({"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 5.0}, PlantPoint(200.0, 0.51, 0.5, slip=True), False),
+    ({"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 5.0}, PlantPoint(3300.0, 0.51, 0.5), False),
+])
+def test_inertia_compensation_poles_agree_with_the_step(fb, p, grows):
+    """The analysis's closed loop with the inertia compensation (its acceleration filter, the
+    IMU's 400 Hz sample-and-hold modelled as one extra cycle) predicts what the compiled step
+    does against a physical plant: growth per window as the dominant pole says, or decay."""
+    m = _quiet({"feedback": fb})
+    m["feedforward"]["dead_band_rad_s"] = 0.0       # rest gate open: the linear loop the analysis has
+    m["stability"] = {"gyro_noise_rad_s": 0.0}      # (allowed only for a noiseless gyro)
+    cfg = ControllerConfig.from_mapping(m)
+    poles = closed_loop_poles(cfg, p, 2)
+    rho = float(np.max(np.abs(poles)))
+    assert (rho > 1.0) == grows
+    if grows:
+        n_win = int(min(3000, max(100, round(math.log(20.0) / math.log(rho)))))    # x5 to x20 per window
+        v = _run_step_physical(cfg, p, 2, 500 + 2 * n_win)
+        a_, b_ = (np.max(np.abs(v[500 + i * n_win:500 + (i + 1) * n_win])) for i in (0, 1))
+        assert 1.0 / 3.0 < (b_ / a_) / rho ** n_win < 3.0 and b_ > 2.0 * a_
+    else:
+        v = _run_step_physical(cfg, p, 2, 8000)
+        assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
+
+
+def test_inertia_compensation_margins_and_its_limit():
+    """J_c lowers the inertia the hand feels but eats margin: 0.2 kg m^2 from the link's
+    acceleration meets PM >= 45 deg, GM >= 6 dB over the grid, 0.3 does not (the link's free
+    mode in slip), and an amount at or above the lightest joint inertia is refused by name."""
+    ok = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 5.0}})
+    assert analyse(ok).ok
+    bad = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": 0.3, "acceleration_cutoff_hz": 5.0}})
+    assert not analyse(bad).ok
+    j_min = 0.73 * (1 - ok.stability.inertia_tolerance) + ok.stability.link_inertia_kg_m2
+    with pytest.raises(ConfigError, match="inertia_comp_kg_m2"):
+        ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": j_min}})
+    with pytest.raises(ConfigError, match="dead_band_rad_s"):      # no rest band: gyro noise on the command
+        ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0}})
+    ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
+                                   "feedback": {"inertia_comp_kg_m2": 0.0}})
+    with pytest.raises(ConfigError, match="acceleration_source"):
+        ControllerConfig.from_mapping({"feedback": {"acceleration_source": "wheel"}})
+
+
+def test_inertia_compensation_is_off_at_rest():
+    """At rest (joint rate inside the feedforward's rest band) the differentiated gyro noise
+    does not reach the command: the same noisy run with and without J_c commands the same."""
+    rng = np.random.default_rng(3)
+    cmds = []
+    for jc in (0.0, 0.2):
+        ctl = Controller(ControllerConfig.from_mapping(_quiet({"feedback": {"inertia_comp_kg_m2": jc}})))
+        r = ctl.record[0]
+        noise = rng.normal(0.0, 2e-3, 4000) if jc == 0.0 else noise
+        out = []
+        for k in range(4000):
+            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+            r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+            r["dq_out_rad_s"] = noise[k]
+            out.append(ctl.step())
+        cmds.append(np.array(out))
+    assert np.array_equal(cmds[0], cmds[1])
+    # and the gate opens in motion: a ramp in the joint rate gives J_c x the acceleration
+    ctl = Controller(ControllerConfig.from_mapping(_quiet({"feedback": {"inertia_comp_kg_m2": 0.2}})))
+    r = ctl.record[0]
+    for k in range(3000):
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+        r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+        r["dq_out_rad_s"] = 0.05 + 2.0 * k * 1e-3          # 2 rad/s^2
+        u = ctl.step()
+    assert u == pytest.approx(0.2 * 2.0, rel=1e-3)
+
+
+def test_acceleration_filter_is_the_step():
+    """A(z) of the analysis reproduces the compiled step's response to a motor-velocity pulse
+    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m."""
+    from capstan.controller.law.loop_model import acceleration_filter
+    m = _quiet({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 7.0, "acceleration_source": "motor",
+                             "ki_1_s": 0.0}})
+    m["feedforward"]["dead_band_rad_s"] = 0.0
+    m["stability"] = {"gyro_noise_rad_s": 0.0}
+    cfg = ControllerConfig.from_mapping(m)
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    v = np.zeros(300)
+    v[5] = 1e-2
+    u = np.zeros(len(v))
+    for k in range(len(v)):
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
+        r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+        r["imu_new"] = 1
+        r["dq_m_rad_s"] = v[k]
+        u[k] = ctl.step()
+    a = acceleration_filter(cfg)
+    assert np.max(np.abs(u - 0.2 * signal.lfilter(a[0], a[1], v))) < 1e-9 * np.max(np.abs(u))

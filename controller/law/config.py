@@ -21,6 +21,9 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
+        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
+        acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
+        acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
@@ -88,6 +91,7 @@ from dataclasses import asdict, dataclass, field
 from enum import IntEnum
 from typing import Any, Mapping
 
+from capstan.controller.law.feedback_config import AccelerationSource, FeedbackGains, feedback_from_mapping
 from capstan.controller.law.learned_effects import check_entries
 from capstan.controller.law.stability_settings import StabilitySettings, stability_from_mapping
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
@@ -125,17 +129,6 @@ class PlantNominal:
     motor_damping_Nms_rad: float = 0.5
     r_in_m: float = 0.04
     r_out_m: float = 0.04
-
-
-@dataclass(frozen=True)
-class FeedbackGains:
-    """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
-
-    kp: float = 0.0
-    kd_s: float = 0.0
-    derivative_cutoff_hz: float = 40.0
-    ki_1_s: float = 0.15
-    integral_limit_Nm: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -239,15 +232,7 @@ class ControllerConfig:
 
         p = f"{prefix}.feedback"
         c = section(cfg, "feedback", prefix, required=False)
-        reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm"}, p)
-        fd = d.feedback
-        fb = FeedbackGains(
-            get_float(c, "kp", p, fd.kp, min_value=0.0),
-            get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
-            get_float(c, "derivative_cutoff_hz", p, fd.derivative_cutoff_hz, min_value=0.0,
-                      min_exclusive=True, max_value=0.45 * nyq),
-            get_float(c, "ki_1_s", p, fd.ki_1_s, min_value=0.0),
-            get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0))
+        fb = feedback_from_mapping(c, p, d.feedback, nyq)
 
         p = f"{prefix}.filters"
         c = section(cfg, "filters", prefix, required=False)
@@ -269,6 +254,21 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
+        if fb.inertia_comp_kg_m2 > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
+            raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
+                              f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "
+                              f"{prefix}.feedback.inertia_comp_kg_m2 > 0: the rest band also keeps the "
+                              f"differentiated gyro noise off the command at rest, got {ff.dead_band_rad_s}")
+        j_min = plant.motor_inertia_kg_m2 * (1.0 - stab.inertia_tolerance)
+        what = "J_m (1 - inertia_tolerance)"
+        if fb.acceleration_source == AccelerationSource.LINK:     # motor and link move together
+            j_min += stab.link_inertia_kg_m2
+            what += " + stability.link_inertia_kg_m2"
+        if fb.inertia_comp_kg_m2 >= j_min:
+            raise ConfigError(f"{prefix}.feedback.inertia_comp_kg_m2",
+                              f"must be below the smallest inertia the loop is checked for, {what} = "
+                              f"{j_min:.3f} kg m^2 (the joint would feel no or negative inertia and run "
+                              f"away), got {fb.inertia_comp_kg_m2}")
         return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab,
                                 q_out_blend_hz=blend_hz)
 
@@ -281,7 +281,8 @@ class ControllerConfig:
             "torque_loop": self.torque_loop.name.lower(),
             "plant": asdict(self.plant),
             "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
-            "feedback": asdict(self.feedback),
+            "feedback": {**asdict(self.feedback),
+                         "acceleration_source": self.feedback.acceleration_source.name.lower()},
             "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz, "q_out_blend_hz": self.q_out_blend_hz},
             "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
             "feedforward": {

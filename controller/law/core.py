@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from capstan.controller.law.config import ControllerConfig, Placement, PretensionSource, TorqueLoop
+from capstan.controller.law.config import AccelerationSource, ControllerConfig, Placement, PretensionSource, TorqueLoop
 from capstan.controller.law.feedforward import friction_torque_per_N
 from capstan.controller.law.learned_effects import pack_block
 from capstan.controller.law.ldo import derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients, \
@@ -51,6 +51,9 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_KP] = fb.kp
     c[_s.C_KD_B0], c[_s.C_KD_A1] = derivative_filter_coefficients(fb.kd_s, fb.derivative_cutoff_hz, dt)
     c[_s.C_KI_DT] = fb.ki_1_s * dt
+    c[_s.C_JC] = fb.inertia_comp_kg_m2
+    c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
+    c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0
     c[_s.C_I_LIM] = fb.integral_limit_Nm
     c[_s.C_G_ON] = 1.0 if cfg.gravity_enabled else 0.0
     c[_s.C_MGL] = cfg.m_g_l_Nm

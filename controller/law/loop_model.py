@@ -31,12 +31,13 @@ crossings refined by interpolation; closed-loop stability from the roots of
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
-from capstan.controller.law.config import ControllerConfig, TorqueLoop
+from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
 from capstan.controller.law.ldo import (derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients,
                                         qpinv_filter_coefficients)
 
@@ -132,9 +133,67 @@ def plant_continuous(p: PlantPoint) -> TF:
     return K * ml, np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
 
 
-def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int) -> TF:
-    """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)."""
-    num, den, _ = signal.cont2discrete(plant_continuous(p), dt_s, method="zoh")
+def plant_velocity_continuous(p: PlantPoint) -> TF:
+    """``P_v(s)`` (descending powers of s): applied motor torque -> motor velocity dq_m."""
+    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
+    if not p.slip:
+        return np.array([1.0, 0.0]), np.polyadd(mm, [K])
+    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
+    return np.polymul([1.0, 0.0], np.polyadd(ml, [K])), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
+
+
+def plant_link_velocity_continuous(p: PlantPoint) -> TF:
+    """``P_o(s)``: applied motor torque -> link velocity dq_out (0 when the output sticks)."""
+    if not p.slip:
+        return np.array([0.0]), np.array([1.0])
+    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
+    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
+    return np.array([K, 0.0]), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
+
+
+def acceleration_filter(cfg: ControllerConfig) -> TF:
+    """``A(z)``: velocity -> the step's acceleration [1/s].
+
+    Motor source: ``(1 - a)(1 - z^-1) / (T (1 - a z^-1))``. Link source: the IMU's rate
+    is differentiated per 400 Hz sample and held; modelled at 1 kHz as the same difference
+    with one cycle more delay (the sample-and-hold's mean age, 1.25 ms), and ``r_in/r_out``.
+    """
+    a = lowpass_alpha(cfg.feedback.acceleration_cutoff_hz, cfg.dt_s)
+    g = (1.0 - a) / cfg.dt_s
+    if cfg.feedback.acceleration_source == AccelerationSource.LINK:
+        g /= cfg.plant.r_in_m / cfg.plant.r_out_m
+        return np.array([0.0, g, -g]), np.array([1.0, -a])
+    return np.array([g, -g]), np.array([1.0, -a])
+
+
+def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
+    """The plant's velocity that feeds the inertia compensation (motor or link), continuous."""
+    if cfg.feedback.acceleration_source == AccelerationSource.LINK:
+        return plant_link_velocity_continuous(p)
+    return plant_velocity_continuous(p)
+
+
+def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
+                  f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
+    input, ``L = z^-d (C P - J_c A P_v)`` (the inertia compensation is positive feedback of
+    the motor acceleration, so it enters with a minus sign)."""
+    c = freq_response(controller_tf(cfg), f_hz, cfg.dt_s)
+    loop = c * freq_response(plant_discrete(p, cfg.dt_s, delay_cycles), f_hz, cfg.dt_s)
+    jc = cfg.feedback.inertia_comp_kg_m2
+    vel = acceleration_velocity_tf(cfg, p)
+    if jc != 0.0 and np.any(vel[0]):
+        pv = plant_discrete(p, cfg.dt_s, delay_cycles, vel)
+        loop = loop - jc * freq_response(_mul(acceleration_filter(cfg), pv), f_hz, cfg.dt_s)
+    return c, loop
+
+
+def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int, plant: TF | None = None) -> TF:
+    """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)
+    of ``plant`` (descending powers of s; default :func:`plant_continuous`)."""
+    with warnings.catch_warnings():     # ZOH of a velocity leaves a ~1e-20 leading numerator term
+        warnings.simplefilter("ignore", signal.BadCoefficients)
+        num, den, _ = signal.cont2discrete(plant_continuous(p) if plant is None else plant, dt_s, method="zoh")
     num = np.trim_zeros(np.atleast_2d(num)[0], "f") if np.any(num) else np.zeros(1)
     den = np.atleast_1d(den)
     # descending powers of z -> ascending z^-1 with the relative degree as leading zeros
@@ -162,7 +221,9 @@ class _Block:
             self.A, self.B, self.C, self.D = (np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)),
                                               np.array([[num[0] / den[0] if n == 1 else 0.0]]))
         else:
-            self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
+            with warnings.catch_warnings():     # a leading zero (a pure delay) is stripped, not a problem
+                warnings.simplefilter("ignore", signal.BadCoefficients)
+                self.A, self.B, self.C, self.D = signal.tf2ss(num, den)
         self.n = self.A.shape[0]
 
     def step(self, x: np.ndarray, u: float) -> tuple[float, np.ndarray]:
@@ -207,9 +268,14 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     else:
         QP = Q = _Block((np.array([0.0]), np.array([1.0])))
     ag, bg, cg = plant_state_space(p, cfg.dt_s)
+    jc = fb.inertia_comp_kg_m2
+    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 else (np.array([0.0]), np.array([1.0])))
+    link = fb.acceleration_source == AccelerationSource.LINK
+    v_index = (3 if p.slip else -1) if link else 1      # plant states (q_m, dq_m[, q_o, dq_o])
     d = int(delay_cycles)
-    # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay
-    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 0 if ldo else 1, d]
+    # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay,
+    # motor acceleration filter
+    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 0 if ldo else 1, d, Acc.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -225,12 +291,16 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
             q, out[5] = Q.step(xs[5], m)
             out[7] = xs[7]
             u = -(fb.kp * tf_ + dd + qp) + q
-            out[6] = np.array([u])
         else:
             out[4], out[5], out[6] = xs[4], xs[5], xs[6]
             integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_
             out[7] = np.array([integ])
             u = -(fb.kp * tf_ + dd) + integ
+        v = float(xs[0][v_index]) if v_index >= 0 else 0.0
+        acc, out[9] = Acc.step(xs[9], v)
+        u += jc * acc
+        if ldo:
+            out[6] = np.array([u])      # the observer's u[k-1] is the applied command, J_c term included
         if d:
             w = float(xs[8][0])
             out[8] = np.concatenate((xs[8][1:], [u]))

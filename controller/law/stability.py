@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.law.config import ControllerConfig, StabilitySettings
-from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, controller_tf, freq_response,
-                                               plant_discrete, reference_tf)
+from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, freq_response,
+                                               loop_response, reference_tf)
 from capstan.models.common.errors import ConfigError
 
 
@@ -145,15 +145,12 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
                   gyro_slope: float) -> PointResult:
     """Margins and noise gains of the loop on one plant point."""
     dt = cfg.dt_s
-    c = controller_tf(cfg)
-    g = plant_discrete(p, dt, st.io_delay_cycles)
     poles = closed_loop_poles(cfg, p, st.io_delay_cycles)
     stable = bool(np.all(np.abs(poles) < 1.0 - 1e-9))
     i_dom = int(np.argmax(np.abs(poles)))      # the slowest-decaying (or fastest-growing) mode
     dom_abs, dom_hz = float(abs(poles[i_dom])), float(abs(np.angle(poles[i_dom])) / (2.0 * math.pi * dt))
     f = np.geomspace(0.05, 0.5 / dt * 0.9999, 12000)
-    C = freq_response(c, f, dt)
-    L = C * freq_response(g, f, dt)
+    C, L = loop_response(cfg, p, st.io_delay_cycles, f)
     mag_db = 20.0 * np.log10(np.abs(L))
     ph = np.unwrap(np.angle(L))
     pm, f_pm = math.inf, math.nan
@@ -177,9 +174,9 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     iN = int(np.argmax(np.where(f > 1.0, N, 0.0)))
     # white-noise gains: uniform grid over the Nyquist band (variance = mean |H|^2)
     fu = np.linspace(0.0, 0.5 / dt, 4001)[1:]
-    Lu = freq_response(c, fu, dt) * freq_response(g, fu, dt)
+    Cu, Lu = loop_response(cfg, p, st.io_delay_cycles, fu)
     Su = 1.0 / (1.0 + Lu)
-    lc_gain = float(np.sqrt(np.mean(np.abs(freq_response(c, fu, dt) * Su) ** 2)))
+    lc_gain = float(np.sqrt(np.mean(np.abs(Cu * Su) ** 2)))
     ref_gain = float(np.sqrt(np.mean(np.abs(freq_response(reference_tf(cfg), fu, dt) * Su) ** 2)))
     sigma_tau_in = cfg.plant.r_in_m * math.sqrt(2.0) * st.tension_noise_N
     return PointResult(

@@ -25,6 +25,12 @@ Control law (per cycle, ``k``)::
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
+    both: tau_m += J_c A[dq_m]     inertia compensation (feedback.inertia_comp_kg_m2): A the
+                                   motor velocity's backward difference / dt through a 1st-order
+                                   low-pass (feedback.acceleration_cutoff_hz); the loop then
+                                   sees J_m - J_c (controller/law/loop_model.py checks it);
+                                   x the feedforward's rest gate on dq_out: the differentiated
+                                   gyro noise (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -97,7 +103,10 @@ C_LC_TIMEOUT = 38
 C_MOTOR_TIMEOUT = 39
 C_FF_DEAD_BAND = 40     # rest band of the feedforward's velocity [rad/s]
 C_QB_ALPHA = 41         # pole of the complementary filter of q_out (0 = off)
-N_CFG = 42              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_JC = 42               # inertia compensation J_c [kg m^2] (0 = off)
+C_ACC_ALPHA = 43        # pole of the acceleration low-pass
+C_ACC_LINK = 44         # 1.0 = link acceleration from the IMU rate, 0.0 = motor from dq_m
+N_CFG = 45              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -115,7 +124,12 @@ S_FAULT = 13            # latched fault bits (as float64, exact)
 S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
 S_QF = S_FX + N_FX_STATE  # blended joint angle for the gravity model [rad]
 S_FF_OUT = S_QF + 1       # 1.0 if the previous IMU rate was outside the rest gate's lower edge
-N_STATE = S_FF_OUT + 1
+S_V_PREV = S_FF_OUT + 1    # previous velocity sample [rad/s] (acceleration estimate)
+S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
+S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
+S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
+S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
+N_STATE = S_ACC_GATE + 1
 
 
 @njit(cache=True)
@@ -139,6 +153,11 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_RAW_PREV] = math.nan
         st[S_QF] = r.q_out_rad
         st[S_FF_OUT] = 1.0 if rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) > 0.0 else 0.0
+        st[S_V_PREV] = r.dq_out_rad_s if cfg[C_ACC_LINK] != 0.0 else r.dq_m_rad_s
+        st[S_ACC] = 0.0
+        st[S_ACC_RAW] = 0.0
+        st[S_ACC_N] = 0.0
+        st[S_ACC_GATE] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -191,6 +210,19 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
+    if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
+        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise)
+            st[S_ACC_GATE] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        if cfg[C_ACC_LINK] != 0.0:
+            st[S_ACC_N] += 1.0
+            if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
+                st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
+                st[S_V_PREV] = r.dq_out_rad_s
+                st[S_ACC_N] = 0.0
+        else:
+            st[S_ACC_RAW] = (r.dq_m_rad_s - st[S_V_PREV]) / cfg[C_DT]
+            st[S_V_PREV] = r.dq_m_rad_s
+        tau_raw += st[S_ACC_GATE] * cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_RAW])
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])

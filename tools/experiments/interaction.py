@@ -110,7 +110,8 @@ CONTROLLERS: dict[str, tuple[str, bool]] = {
 
 #: the gains the paper-style controllers were tuned with in lock-step (no delay); with the
 #: daemon's 2-cycle I/O delay they miss the margins (`capstan experiment loop`)
-LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}
+LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
+                                  "inertia_comp_kg_m2": 0.0}
 
 
 def plant_mapping(cond: Condition) -> dict[str, Any]:

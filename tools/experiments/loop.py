@@ -113,7 +113,9 @@ def run(args: argparse.Namespace) -> int:
         return 0 if rep.ok else 1
     st = cfg.stability
     print(f"torque loop of {path}: {cfg.torque_loop.name.lower()}, kp {cfg.feedback.kp:g}, kd {cfg.feedback.kd_s:g} s, "
-          f"ki {cfg.feedback.ki_1_s:g} 1/s, I/O delay {st.io_delay_cycles} cycles")
+          f"ki {cfg.feedback.ki_1_s:g} 1/s, inertia compensation {cfg.feedback.inertia_comp_kg_m2:g} kg m^2 "
+          f"({cfg.feedback.acceleration_source.name.lower()}, {cfg.feedback.acceleration_cutoff_hz:g} Hz), "
+          f"I/O delay {st.io_delay_cycles} cycles")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}")
     print(f"{'mode':<21}{'K_c':>7}{'J_m':>6}{'stable':>7}{'GM dB':>8}{'@Hz':>7}{'PM deg':>8}{'@Hz':>7}"

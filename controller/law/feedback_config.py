@@ -1,0 +1,57 @@
+"""The ``controller.feedback`` section: the torque loop's gains on the tau_in error and the
+inertia compensation (``inertia_comp_kg_m2`` x an acceleration, see
+:mod:`capstan.controller.law.step`), with their parsing and validation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Mapping
+
+from capstan.models.common.config_tools import get_choice, get_float, reject_unknown
+
+
+class AccelerationSource(IntEnum):
+    """Where the inertia compensation takes its acceleration from."""
+
+    MOTOR = 0       # the drive's motor velocity, differentiated every cycle
+    LINK = 1        # the IMU's rate of turn, differentiated on each new sample (400 Hz)
+
+
+@dataclass(frozen=True)
+class FeedbackGains:
+    """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
+
+    kp: float = 0.0
+    kd_s: float = 0.0
+    derivative_cutoff_hz: float = 40.0
+    ki_1_s: float = 0.15
+    integral_limit_Nm: float = 5.0
+    #: inertia compensation [kg m^2] (0 = off): ``+ inertia_comp_kg_m2 * a`` on the command, ``a``
+    #: the link's (IMU rate) or the motor's (drive velocity) acceleration at the motor side
+    #: [rad/s^2], differentiated and low-passed at ``acceleration_cutoff_hz`` [Hz], off at rest
+    #: (the feedforward's rest band); the hand feels ``J_m - inertia_comp_kg_m2``
+    inertia_comp_kg_m2: float = 0.2
+    acceleration_cutoff_hz: float = 5.0
+    acceleration_source: AccelerationSource = AccelerationSource.LINK
+
+
+def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
+    """Validate the ``feedback`` mapping ``c`` (dotted prefix ``p``; defaults ``fd``; Nyquist ``nyq`` [Hz]).
+
+    :raises ConfigError: naming the key: unknown key, wrong type or out of range.
+    """
+    reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
+                       "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source"}, p)
+    return FeedbackGains(
+        get_float(c, "kp", p, fd.kp, min_value=0.0),
+        get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
+        get_float(c, "derivative_cutoff_hz", p, fd.derivative_cutoff_hz, min_value=0.0,
+                  min_exclusive=True, max_value=0.45 * nyq),
+        get_float(c, "ki_1_s", p, fd.ki_1_s, min_value=0.0),
+        get_float(c, "integral_limit_Nm", p, fd.integral_limit_Nm, min_value=0.0),
+        get_float(c, "inertia_comp_kg_m2", p, fd.inertia_comp_kg_m2, min_value=0.0),
+        get_float(c, "acceleration_cutoff_hz", p, fd.acceleration_cutoff_hz, min_value=0.0,
+                  min_exclusive=True, max_value=0.45 * nyq),
+        AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
+                                      fd.acceleration_source.name.lower()).upper()])
