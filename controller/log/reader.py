@@ -30,6 +30,7 @@ from mcap.stream_reader import StreamReader
 from capstan.controller.log.ring import dtype_from_json
 from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENTS_TOPIC, STATS_TOPIC
 from capstan.controller.log.schema import ProtoLayout, build_layout
+from capstan.controller.log import wire_decode
 from capstan.models.common.errors import DataFormatError
 from capstan.models.common.wire_units import Derivation, apply_ops
 
@@ -90,6 +91,8 @@ class _Collector:
         #: channel -> full record dtype to decode into (a live log storing wire values)
         self.full: dict[int, np.dtype] = {}
         self.metadata: dict[str, dict[str, str]] = {}
+        #: the cycle channel decoded by the compiled path: (channel id, field table)
+        self.fast: tuple[int, wire_decode.FieldTable] | None = None
 
     def channel(self, ch: Channel) -> None:
         self.channels[ch.id] = ch
@@ -106,6 +109,9 @@ class _Collector:
             self.layouts[ch.id] = layout
             if "record_dtype" in ch.metadata:
                 self.full[ch.id] = dtype_from_json(json.loads(ch.metadata["record_dtype"]))
+            target = self.full.get(ch.id, layout.dtype)
+            if ch.topic == CYCLE_TOPIC and self.fast is None and wire_decode.supported(target):
+                self.fast = (ch.id, wire_decode.field_table(layout, target))
 
     def add(self, ch: int, blob: Any) -> None:
         layout = self.layouts.get(ch)
@@ -118,23 +124,61 @@ class _Collector:
                                   f"message size {layout.message_size}")
         self.store(ch, raw, 0, raw.size // layout.message_size, layout.message_size)
 
-    def store(self, ch: int, buf: np.ndarray, offset: int, n: int, stride: int) -> None:
-        """Decode ``n`` messages of channel ``ch`` at ``buf[offset + k * stride]``: into its
-        preallocated array while it has room (the summary's count), else as a new part."""
-        layout = self.layouts[ch]
-        dtype = self.full.get(ch, layout.dtype)
-        if ch in self.counts and ch not in self.buffers:
-            self.buffers[ch] = [np.empty(self.counts[ch], dtype), 0]
-        data = buf
+    def room(self, ch: int, n: int) -> np.ndarray:
+        """The preallocated records of channel ``ch`` (sized from the summary's count),
+        grown so that ``n`` more fit."""
+        dtype = self.full.get(ch, self.layouts[ch].dtype)
         buf = self.buffers.get(ch)
-        if buf is not None and buf[1] + n <= len(buf[0]) and not self.payloads[ch]:
-            layout.decode_span(data, offset, n, stride, dtype, out=buf[0][buf[1]:buf[1] + n])
-            buf[1] += n
-            return
-        if buf is not None and buf[1]:          # the summary's count was wrong: parts from here
-            self.payloads[ch].append(buf[0][:buf[1]])
-            buf[1] = 0
-        self.payloads[ch].append(layout.decode_span(data, offset, n, stride, dtype))
+        if buf is None:
+            buf = self.buffers[ch] = [np.empty(max(self.counts.get(ch, 0), n), dtype), 0]
+        elif buf[1] + n > len(buf[0]):          # no summary, or its count was short
+            grown = np.empty(max(2 * len(buf[0]), buf[1] + n), dtype)
+            grown[:buf[1]] = buf[0][:buf[1]]
+            buf[0] = grown
+        return buf[0]
+
+    def store(self, ch: int, buf: np.ndarray, offset: int, n: int, stride: int) -> None:
+        """Decode ``n`` messages of channel ``ch`` at ``buf[offset + k * stride]`` into its
+        preallocated array."""
+        layout = self.layouts[ch]
+        out = self.room(ch, n)
+        filled = self.buffers[ch][1]
+        layout.decode_span(buf, offset, n, stride, out.dtype, out=out[filled:filled + n])
+        self.buffers[ch][1] += n
+
+    def decode_fast(self, buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Decode the cycle messages of a chunk's bytes with the compiled path; returns
+        (opcode, body, length) of every other record.
+
+        :raises DataFormatError: if a cycle message is not valid protobuf or a field has
+            a wire type other than its schema's.
+        """
+        assert self.fast is not None
+        ch, table = self.fast
+        others = np.empty((buf.size // 9 + 1, 3), np.int64)
+        seen = np.zeros(table.wire_type.size, np.int64)
+        scratch = np.zeros(8, np.uint8)
+        est = buf.size // (self.layouts[ch].message_size + _MSG_HEAD + 9) + 1
+        pos, n_other = 0, 0
+        need = est if ch not in self.buffers and not self.counts.get(ch) else 0
+        while True:
+            out = self.room(ch, need)
+            rows = out.view(np.uint8).reshape(len(out), out.dtype.itemsize)
+            status, pos, n, k, detail = wire_decode.decode_chunk(
+                buf, pos, ch, rows, self.buffers[ch][1], table.wire_type, table.offset, table.size,
+                table.kind, others[n_other:], seen, scratch)
+            self.buffers[ch][1] += n
+            n_other += k
+            if status == wire_decode.OK:
+                break
+            need = est
+            if status != wire_decode.NO_ROOM:
+                topic = self.channels[ch].topic
+                what = (f"field {detail} ('{table.names[detail]}') has a wire type other than its schema's"
+                        if status == wire_decode.WRONG_WIRE_TYPE else "is not valid protobuf")
+                raise DataFormatError(f"{topic}: message {self.buffers[ch][1]} (chunk byte {pos}) {what}")
+        o = others[:n_other]
+        return o[:, 0].astype(np.uint8), o[:, 1], o[:, 2]
 
     def walk_chunk(self, chunk: Chunk) -> None:
         if chunk.compression == "zstd":
@@ -146,7 +190,10 @@ class _Collector:
         else:
             raise DataFormatError(f"unsupported chunk compression {chunk.compression!r}")
         buf = np.frombuffer(data, dtype=np.uint8)
-        ops, bodies, lengths = _scan_records(buf)
+        if self.fast is not None:
+            ops, bodies, lengths = self.decode_fast(buf)
+        else:
+            ops, bodies, lengths = _scan_records(buf)
         is_msg = ops == _OP_MESSAGE
         # schemas and channels first: a chunk may define a channel and carry its messages
         for op, body, length in zip(ops[~is_msg].tolist(), bodies[~is_msg].tolist(),
@@ -360,6 +407,17 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
     except ValueError as exc:
         raise DataFormatError(f"{path}: '{DERIVATIONS_META}' metadata is not JSON: {exc}") from exc
     derivations = {d.field: d for d in (Derivation.from_json(x) for x in items)}
+    for name in missing:
+        d = derivations.get(name)
+        if d is None or d.source not in have:
+            raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
+                                  "wire field")
+    if wire_decode.supported(record_dtype) and all(record_dtype.fields[n][0] == np.float64 for n in missing):
+        try:                                     # compiled, one pass over the records
+            wire_decode.derive_fields(out, list(derivations.values()), missing)
+        except DataFormatError as exc:
+            raise DataFormatError(f"{path}: {exc}") from exc
+        return out
     for name in missing:
         d = derivations.get(name)
         if d is None or d.source not in have:

@@ -1,0 +1,309 @@
+"""Compiled decoding of a chunk's cycle messages: MCAP records walked and protobuf wire
+format parsed in one Numba pass per decompressed chunk, straight into the record array.
+
+The parser reads the protobuf wire format by field number (tag varint, then a varint,
+fixed64, fixed32 or length-delimited value), as any protobuf decoder does: fields may
+come in any order, a missing field is zero (proto3 default), an unknown field number
+is skipped, a repeated scalar keeps its last value. Which field number is which record
+field, with which protobuf type, comes from the file's own schema layout
+(:class:`capstan.controller.log.schema.ProtoLayout`, checked by the reader against the
+schema bytes stored in the file). The SI fields a live log does not store are rebuilt
+afterwards from their wire fields with the logged derivations
+(:func:`derive_fields`, the same float64 operations in the same order as
+:func:`capstan.models.common.wire_units.apply_ops`).
+
+Every record that is not a message of the decoded channel (schemas, channels, other
+topics' messages) is handed back as ``(opcode, body offset, body length)`` for the
+reader's ordinary path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numba as nb
+import numpy as np
+
+from capstan.controller.log.schema import ProtoLayout
+from capstan.models.common.errors import DataFormatError
+from capstan.models.common.wire_units import Derivation
+
+#: destination value kinds (record field types the compiled path writes)
+_K_FLOAT_BITS, _K_F32_TO_F64, _K_BOOL = 0, 1, 2
+#: source kinds of a derivation (record field type -> float64)
+_S_SIGNED, _S_UNSIGNED, _S_F32, _S_F64 = 0, 1, 2, 3
+#: derivation op codes, in the order of wire_units.OPS
+_OPS = {"mul": 0, "add": 1, "sub": 2, "div": 3}
+
+#: kernel status codes
+OK, NO_ROOM, BAD_RECORD, BAD_WIRE, WRONG_WIRE_TYPE = 0, 1, 2, 3, 4
+_MESSAGE_OP = 0x05
+_MSG_HEAD = 22          # channel u16, sequence u32, log_time u64, publish_time u64
+
+
+@dataclass(frozen=True)
+class FieldTable:
+    """Per field number (index = number): expected wire type (-1: not a record field),
+    byte offset and size in the record, value kind; built by :func:`field_table`."""
+
+    wire_type: np.ndarray
+    offset: np.ndarray
+    size: np.ndarray
+    kind: np.ndarray
+    names: tuple[str, ...]      # index = field number ('' for unused numbers)
+
+
+def supported(record_dtype: np.dtype) -> bool:
+    """True if every field of ``record_dtype`` is a little-endian scalar the compiled path
+    writes (float64/32, int/uint 8-64 bit, bool); else the reader's numpy path is used."""
+    for name in record_dtype.names or ():
+        dt = record_dtype.fields[name][0]
+        if dt.shape != () or dt.kind not in "fiub" or (dt.kind == "f" and dt.itemsize not in (4, 8)):
+            return False
+        if dt.byteorder == ">":
+            return False
+    return record_dtype.names is not None
+
+
+def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
+    """The field table decoding ``layout``'s messages into records of ``record_dtype``.
+
+    :raises DataFormatError: if a stored field is missing from ``record_dtype`` or its
+        stored type cannot be written to the record's type.
+    """
+    names = layout.dtype.names
+    n = len(names) + 1
+    wt = np.full(n, -1, np.int64)
+    off = np.zeros(n, np.int64)
+    size = np.zeros(n, np.int64)
+    kind = np.zeros(n, np.int64)
+    for number, name in enumerate(names, start=1):
+        if name not in record_dtype.names:
+            raise DataFormatError(f"stored field '{name}' is not a field of the record dtype")
+        wdt = layout.wire_dtype.fields[name][0]
+        rdt, roff = record_dtype.fields[name][:2]
+        if rdt.kind == "b":
+            wt[number], k = 0, _K_BOOL
+        elif wdt.kind == "f" and wdt.itemsize == 4 and rdt.kind == "f" and rdt.itemsize == 8:
+            wt[number], k = 5, _K_F32_TO_F64
+        elif (wdt.kind == rdt.kind or (wdt.kind in "iu" and rdt.kind in "iu")) \
+                and rdt.itemsize <= wdt.itemsize:
+            wt[number], k = (1 if wdt.itemsize == 8 else 5), _K_FLOAT_BITS
+        else:
+            raise DataFormatError(f"stored field '{name}' ({wdt}) cannot be decoded into {rdt}")
+        off[number], size[number], kind[number] = roff, rdt.itemsize, k
+    return FieldTable(wt, off, size, kind, ("", *names))
+
+
+@nb.njit(cache=True, nogil=True)
+def _varint(buf, p, end):                           # pragma: no cover - compiled
+    """(value, next position); next position -1 if the varint runs past ``end``."""
+    v = np.uint64(0)
+    shift = 0
+    while p < end and shift < 64:
+        b = buf[p]
+        p += 1
+        v |= np.uint64(b & 0x7F) << np.uint64(shift)
+        if b < 0x80:
+            return v, p
+        shift += 7
+    return v, -1
+
+
+@nb.njit(cache=True, nogil=True)
+def _le(buf, p, k):                                 # pragma: no cover - compiled
+    v = np.uint64(0)
+    for i in range(k):
+        v |= np.uint64(buf[p + i]) << np.uint64(8 * i)
+    return v
+
+
+@nb.njit(cache=True, nogil=True)
+def _put(dst, o, k, v):                             # pragma: no cover - compiled
+    """Store the low ``k`` bytes of ``v`` little-endian at ``dst[o]`` (k = 8, 4, 2 or 1
+    written out, so the compiler merges them into one store)."""
+    if k == 8:
+        dst[o] = np.uint8(v & np.uint64(0xFF))
+        dst[o + 1] = np.uint8((v >> np.uint64(8)) & np.uint64(0xFF))
+        dst[o + 2] = np.uint8((v >> np.uint64(16)) & np.uint64(0xFF))
+        dst[o + 3] = np.uint8((v >> np.uint64(24)) & np.uint64(0xFF))
+        dst[o + 4] = np.uint8((v >> np.uint64(32)) & np.uint64(0xFF))
+        dst[o + 5] = np.uint8((v >> np.uint64(40)) & np.uint64(0xFF))
+        dst[o + 6] = np.uint8((v >> np.uint64(48)) & np.uint64(0xFF))
+        dst[o + 7] = np.uint8((v >> np.uint64(56)) & np.uint64(0xFF))
+    elif k == 4:
+        dst[o] = np.uint8(v & np.uint64(0xFF))
+        dst[o + 1] = np.uint8((v >> np.uint64(8)) & np.uint64(0xFF))
+        dst[o + 2] = np.uint8((v >> np.uint64(16)) & np.uint64(0xFF))
+        dst[o + 3] = np.uint8((v >> np.uint64(24)) & np.uint64(0xFF))
+    else:
+        for i in range(k):
+            dst[o + i] = np.uint8((v >> np.uint64(8 * i)) & np.uint64(0xFF))
+
+
+@nb.njit(cache=True, nogil=True)
+def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, others,
+                 seen, scratch):                    # pragma: no cover - compiled
+    """Walk the MCAP records of a decompressed chunk from byte ``start``; decode every
+    message of ``channel`` into ``out`` (records as a uint8 ``(rows, itemsize)`` array)
+    from row ``row``; list every other record in ``others`` as (opcode, body, length).
+
+    Returns ``(status, position, rows written, others listed, detail)``: ``position``
+    is where the walk stopped (the record that did not fit for NO_ROOM: resume there),
+    ``detail`` the offending field number for WRONG_WIRE_TYPE.
+    """
+    pos = start
+    end = buf.size
+    n_other = 0
+    nfield = wire_type.size
+    f64 = scratch.view(np.float64)
+    u32 = scratch[:4].view(np.uint32)
+    f32 = scratch[:4].view(np.float32)
+    u64 = scratch.view(np.uint64)
+    r0 = row
+    while pos + 9 <= end:
+        op = buf[pos]
+        length = _le(buf, pos + 1, 8)
+        body = pos + 9
+        if length > np.uint64(end - body):
+            break                                    # incomplete record: chunk ends here
+        rec_end = body + np.int64(length)
+        if op != _MESSAGE_OP or length < _MSG_HEAD or (buf[body] | (np.int64(buf[body + 1]) << 8)) != channel:
+            others[n_other, 0] = op
+            others[n_other, 1] = body
+            others[n_other, 2] = np.int64(length)
+            n_other += 1
+            pos = rec_end
+            continue
+        if row >= out.shape[0]:
+            return NO_ROOM, pos, row - r0, n_other, 0
+        dst = out[row]
+        p = body + _MSG_HEAD
+        while p < rec_end:
+            tag, p = _varint(buf, p, rec_end)
+            if p < 0:
+                return BAD_WIRE, pos, row - r0, n_other, 0
+            fn = np.int64(tag >> np.uint64(3))
+            wt = np.int64(tag & np.uint64(7))
+            if wt == 0:
+                v, p = _varint(buf, p, rec_end)
+                if p < 0:
+                    return BAD_WIRE, pos, row - r0, n_other, 0
+            elif wt == 1:
+                if p + 8 > rec_end:
+                    return BAD_WIRE, pos, row - r0, n_other, 0
+                v = _le(buf, p, 8)
+                p += 8
+            elif wt == 5:
+                if p + 4 > rec_end:
+                    return BAD_WIRE, pos, row - r0, n_other, 0
+                v = _le(buf, p, 4)
+                p += 4
+            elif wt == 2:
+                ln, p = _varint(buf, p, rec_end)
+                if p < 0 or ln > np.uint64(rec_end - p):
+                    return BAD_WIRE, pos, row - r0, n_other, 0
+                p += np.int64(ln)
+                continue                             # no record field is length-delimited
+            else:
+                return BAD_WIRE, pos, row - r0, n_other, 0
+            if fn <= 0 or fn >= nfield or wire_type[fn] < 0:
+                continue                             # unknown field: skipped, as protobuf does
+            if wire_type[fn] != wt:
+                return WRONG_WIRE_TYPE, pos, row - r0, n_other, fn
+            k = kind[fn]
+            if k == _K_F32_TO_F64:
+                u32[0] = np.uint32(v)
+                f64[0] = np.float64(f32[0])
+                v = u64[0]
+            elif k == _K_BOOL:
+                v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
+            _put(dst, offset[fn], size[fn], v)
+            seen[fn] = row + 1
+        for fn in range(1, nfield):                 # absent fields: proto3 default zero
+            if wire_type[fn] >= 0 and seen[fn] != row + 1:
+                o = offset[fn]
+                for i in range(size[fn]):
+                    dst[o + i] = 0
+        row += 1
+        pos = rec_end
+    return OK, pos, row - r0, n_other, 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _derive(out, src_off, src_size, src_kind, dst_off, op_start, op_code, op_value,
+            scratch):                               # pragma: no cover - compiled
+    u64 = scratch.view(np.uint64)
+    f64 = scratch.view(np.float64)
+    u32 = scratch[:4].view(np.uint32)
+    f32 = scratch[:4].view(np.float32)
+    for r in range(out.shape[0]):
+        rec = out[r]
+        for j in range(src_off.size):
+            o, k, s = src_off[j], src_kind[j], src_size[j]
+            v = np.uint64(0)
+            for i in range(s):
+                v |= np.uint64(rec[o + i]) << np.uint64(8 * i)
+            if k == _S_F64:
+                u64[0] = v
+                x = f64[0]
+            elif k == _S_F32:
+                u32[0] = np.uint32(v)
+                x = np.float64(f32[0])
+            elif k == _S_UNSIGNED:
+                x = np.float64(v)
+            else:                                    # signed: sign-extend from s bytes
+                sh = np.uint64(64 - 8 * s)
+                x = np.float64(np.int64(v << sh) >> np.int64(sh))
+            for q in range(op_start[j], op_start[j + 1]):
+                c, w = op_code[q], op_value[q]
+                if c == 0:
+                    x = x * w
+                elif c == 1:
+                    x = x + w
+                elif c == 2:
+                    x = x - w
+                else:
+                    x = x / w
+            f64[0] = x
+            v = u64[0]
+            d = dst_off[j]
+            for i in range(8):
+                rec[d + i] = np.uint8((v >> np.uint64(8 * i)) & np.uint64(0xFF))
+
+
+def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missing: Sequence[str]) -> None:
+    """Compute each of ``missing`` (float64 fields of ``records``) from its wire field, in
+    place, with the derivation's float64 operations in order (bit for bit as
+    :func:`capstan.models.common.wire_units.apply_ops` on float64 arrays).
+
+    :raises DataFormatError: if a derivation is missing, its source is not a field of the
+        records, or a target is not float64.
+    """
+    dt = records.dtype
+    by_field = {d.field: d for d in derivations}
+    src_off, src_size, src_kind, dst_off, op_start, op_code, op_value = [], [], [], [], [0], [], []
+    for name in missing:
+        d = by_field.get(name)
+        if d is None or d.source not in dt.names:
+            raise DataFormatError(f"field '{name}' is neither stored nor derivable from a stored wire field")
+        sdt, soff = dt.fields[d.source][:2]
+        tdt, toff = dt.fields[name][:2]
+        if tdt != np.float64:
+            raise DataFormatError(f"derived field '{name}' is {tdt}, not float64")
+        src_off.append(soff)
+        src_size.append(sdt.itemsize)
+        src_kind.append({"i": _S_SIGNED, "u": _S_UNSIGNED, "b": _S_UNSIGNED}.get(
+            sdt.kind, _S_F32 if sdt.itemsize == 4 else _S_F64))
+        dst_off.append(toff)
+        for op, v in d.ops:
+            op_code.append(_OPS[op])
+            op_value.append(v)
+        op_start.append(len(op_code))
+    if not src_off or not len(records):
+        return
+    rows = records.view(np.uint8).reshape(len(records), dt.itemsize)
+    _derive(rows, np.asarray(src_off, np.int64), np.asarray(src_size, np.int64),
+            np.asarray(src_kind, np.int64), np.asarray(dst_off, np.int64), np.asarray(op_start, np.int64),
+            np.asarray(op_code, np.int64), np.asarray(op_value, np.float64), np.zeros(8, np.uint8))
