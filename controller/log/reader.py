@@ -79,9 +79,18 @@ class _Collector:
     """Gathers records while streaming; protobuf channels with a numpy dtype are
     decoded chunk by chunk (small, cache-friendly arrays), others kept as raw messages."""
 
-    def __init__(self, counts: dict[int, int] | None = None) -> None:
+    def __init__(self, counts: dict[int, int] | None = None, fields: tuple[str, ...] | None = None,
+                 derivations_json: str | None = None) -> None:
         #: channel -> message count from the file's summary (preallocated decoding)
         self.counts = dict(counts or {})
+        #: cycle fields to decode (None: all); derived ones need the derivations up front
+        self.fields = fields
+        self.derivations = _parse_derivations(derivations_json)
+        self.sources = {d.field: d.source for d in self.derivations}
+        #: rebuilt in the compiled pass: cycle channel -> derived field names
+        self.derived: tuple[str, ...] = ()
+        #: cycle rows decoded by the numpy path (SI fields rebuilt after reading)
+        self.slow_rows: list[tuple[int, int]] = []
         #: channel -> [preallocated records, records filled]
         self.buffers: dict[int, list[Any]] = {}
         self.schemas: dict[int, Schema] = {}
@@ -109,9 +118,18 @@ class _Collector:
             self.layouts[ch.id] = layout
             if "record_dtype" in ch.metadata:
                 self.full[ch.id] = dtype_from_json(json.loads(ch.metadata["record_dtype"]))
+            if ch.topic == CYCLE_TOPIC and self.fields is not None:
+                self.full[ch.id] = self.subset(self.full.get(ch.id, layout.dtype), layout.dtype.names)
             target = self.full.get(ch.id, layout.dtype)
             if ch.topic == CYCLE_TOPIC and self.fast is None and wire_decode.supported(target):
-                self.fast = (ch.id, wire_decode.field_table(layout, target))
+                missing = tuple(n for n in target.names if n not in layout.dtype.names)
+                derive = wire_decode.NO_DERIVATIONS
+                if missing and all(self.sources.get(n) in layout.dtype.names for n in missing) \
+                        and all(target.fields[n][0] == np.float64 for n in missing):
+                    derive = wire_decode.derive_table(target, self.derivations, missing)
+                    self.derived = missing
+                table = wire_decode.field_table(layout, target)
+                self.fast = (ch.id, table, wire_decode.kernel_derive(table, derive))
 
     def add(self, ch: int, blob: Any) -> None:
         layout = self.layouts.get(ch)
@@ -123,6 +141,18 @@ class _Collector:
             raise DataFormatError(f"{layout.message_name}: {raw.size} bytes is not a multiple of the "
                                   f"message size {layout.message_size}")
         self.store(ch, raw, 0, raw.size // layout.message_size, layout.message_size)
+
+    def subset(self, full: np.dtype, stored: tuple[str, ...]) -> np.dtype:
+        """``full`` restricted to the requested fields and the wire fields they are
+        rebuilt from (all of ``full`` if a requested field's source is unknown)."""
+        assert self.fields is not None
+        keep = set(self.fields) & set(full.names)
+        for name in list(keep):
+            if name not in stored:
+                if name not in self.sources:
+                    return full
+                keep.add(self.sources[name])
+        return np.dtype([(n, full[n]) for n in full.names if n in keep])
 
     def room(self, ch: int, n: int) -> np.ndarray:
         """The preallocated records of channel ``ch`` (sized from the summary's count),
@@ -145,6 +175,8 @@ class _Collector:
         filled = self.buffers[ch][1]
         layout.decode_span(buf, offset, n, stride, out.dtype, out=out[filled:filled + n])
         self.buffers[ch][1] += n
+        if self.fast is not None and ch == self.fast[0]:
+            self.slow_rows.append((filled, filled + n))
 
     def decode_fast(self, buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Decode the cycle messages of a chunk's bytes with the compiled path; returns
@@ -154,10 +186,9 @@ class _Collector:
             a wire type other than its schema's.
         """
         assert self.fast is not None
-        ch, table = self.fast
+        ch, table, derive = self.fast
         others = np.empty((buf.size // 9 + 1, 3), np.int64)
         seen = np.zeros(table.wire_type.size, np.int64)
-        scratch = np.zeros(8, np.uint8)
         est = buf.size // (self.layouts[ch].message_size + _MSG_HEAD + 9) + 1
         pos, n_other = 0, 0
         need = est if ch not in self.buffers and not self.counts.get(ch) else 0
@@ -166,7 +197,7 @@ class _Collector:
             rows = out.view(np.uint8).reshape(len(out), out.dtype.itemsize)
             status, pos, n, k, detail = wire_decode.decode_chunk(
                 buf, pos, ch, rows, self.buffers[ch][1], table.wire_type, table.offset, table.size,
-                table.kind, others[n_other:], seen, scratch)
+                table.kind, others[n_other:], seen, *derive)
             self.buffers[ch][1] += n
             n_other += k
             if status == wire_decode.OK:
@@ -280,10 +311,14 @@ def _scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(ops), np.concatenate(bodies), np.concatenate(lengths)
 
 
-def read_log(path: str | Path, progress: Callable[[int, int], None] | None = None) -> LogData:
+def read_log(path: str | Path, progress: Callable[[int, int], None] | None = None,
+             fields: tuple[str, ...] | None = None) -> LogData:
     """Read a capstan MCAP log.
 
     :param progress: called as ``progress(bytes_done, bytes_total)`` after each chunk.
+    :param fields: cycle fields to read (default all); ``records`` then holds these
+        (those the log has) plus the wire fields they are rebuilt from. Reading fewer
+        fields is faster (replay needs a third of them).
     :raises DataFormatError: if the file is missing, not MCAP, or not a capstan log
         (no ``/capstan/cycle`` channel with a numpy dtype), or its messages do not match
         their schema.
@@ -293,7 +328,8 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
         fh = open(p, "rb")
     except OSError as exc:
         raise DataFormatError(f"{p}: cannot open: {exc.strerror or exc}") from exc
-    col = _Collector(_summary_counts(fh))
+    counts, derivations_json = _summary_counts(fh)
+    col = _Collector(counts, tuple(fields) if fields is not None else None, derivations_json)
     fh.seek(0)
     truncated = True
     total = p.stat().st_size
@@ -326,15 +362,31 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
     return _assemble(p, col, truncated)
 
 
-def _summary_counts(fh: Any) -> dict[int, int]:
-    """Messages per channel from the file's summary ({} if it has none: cut off)."""
+def _summary_counts(fh: Any) -> tuple[dict[int, int], str | None]:
+    """Messages per channel from the file's summary ({} if it has none: cut off), and the
+    wire derivations from its metadata index (None if none or no summary)."""
     try:
-        summary = SeekingReader(fh).get_summary()
+        reader = SeekingReader(fh)
+        summary = reader.get_summary()
+        if summary is None or summary.statistics is None:
+            return {}, None
+        derivations = None
+        if any(ix.name == DERIVATIONS_META for ix in summary.metadata_indexes):
+            for meta in reader.iter_metadata():
+                if meta.name == DERIVATIONS_META:
+                    derivations = meta.metadata.get("derivations")
     except (McapError, struct.error, ValueError, OSError, EOFError):
-        return {}
-    if summary is None or summary.statistics is None:
-        return {}
-    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}
+        return {}, None
+    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}, derivations
+
+
+def _parse_derivations(derivations_json: str | None) -> list[Derivation]:
+    """The logged derivations from the summary ([] if unknown or malformed: the reader
+    then decodes every field and reports a malformed entry when rebuilding at the end)."""
+    try:
+        return [Derivation.from_json(d) for d in json.loads(derivations_json or "[]")]
+    except (ValueError, TypeError, DataFormatError):
+        return []
 
 
 def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
@@ -357,8 +409,11 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
     if records is None:
         raise DataFormatError(f"{p}: no {CYCLE_TOPIC} channel; not a capstan log")
     cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
-    if "record_dtype" in cyc.metadata:
-        records = rebuild_derived(records, dtype_from_json(json.loads(cyc.metadata["record_dtype"])),
+    if col.derived:                              # rebuilt while decoding; numpy-path rows here
+        for a, b in col.slow_rows:
+            wire_decode.derive_fields(records[a:b], col.derivations, col.derived)
+    elif "record_dtype" in cyc.metadata:
+        records = rebuild_derived(records, col.full[cyc.id],
                                   col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p,
                                   stored_fields=col.layouts[cyc.id].dtype.names)
     stats = _decode_channel(p, col, STATS_TOPIC)

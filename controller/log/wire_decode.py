@@ -24,6 +24,9 @@ from typing import Sequence
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from capstan.controller.log.schema import ProtoLayout
 from capstan.models.common.errors import DataFormatError
@@ -67,10 +70,10 @@ def supported(record_dtype: np.dtype) -> bool:
 
 
 def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
-    """The field table decoding ``layout``'s messages into records of ``record_dtype``.
+    """The field table decoding ``layout``'s messages into records of ``record_dtype``;
+    stored fields ``record_dtype`` does not have are skipped (a subset read).
 
-    :raises DataFormatError: if a stored field is missing from ``record_dtype`` or its
-        stored type cannot be written to the record's type.
+    :raises DataFormatError: if a stored field's type cannot be written to the record's type.
     """
     names = layout.dtype.names
     n = len(names) + 1
@@ -80,7 +83,7 @@ def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
     kind = np.zeros(n, np.int64)
     for number, name in enumerate(names, start=1):
         if name not in record_dtype.names:
-            raise DataFormatError(f"stored field '{name}' is not a field of the record dtype")
+            continue
         wdt = layout.wire_dtype.fields[name][0]
         rdt, roff = record_dtype.fields[name][:2]
         if rdt.kind == "b":
@@ -96,7 +99,31 @@ def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
     return FieldTable(wt, off, size, kind, ("", *names))
 
 
-@nb.njit(cache=True, nogil=True)
+@intrinsic
+def _bits_f64(typingctx, v):                        # pragma: no cover - compiled
+    """uint64 bits -> float64 (a register reinterpretation)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.uint64), codegen
+
+
+@intrinsic
+def _f64_bits(typingctx, x):                        # pragma: no cover - compiled
+    """float64 -> its uint64 bits."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+    return types.uint64(types.float64), codegen
+
+
+@intrinsic
+def _bits_f32(typingctx, v):                        # pragma: no cover - compiled
+    """uint32 bits -> float32."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.FloatType())
+    return types.float32(types.uint32), codegen
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _varint(buf, p, end):                           # pragma: no cover - compiled
     """(value, next position); next position -1 if the varint runs past ``end``."""
     v = np.uint64(0)
@@ -111,18 +138,27 @@ def _varint(buf, p, end):                           # pragma: no cover - compile
     return v, -1
 
 
-@nb.njit(cache=True, nogil=True)
-def _le(buf, p, k):                                 # pragma: no cover - compiled
+@nb.njit(cache=True, nogil=True, inline="always")
+def _get(rec, o, k):                                # pragma: no cover - compiled
+    """The ``k`` bytes at ``rec[o]`` as a little-endian uint64 (8 and 4 written out, so
+    the compiler makes them one load)."""
+    if k == 8:
+        return (np.uint64(rec[o]) | (np.uint64(rec[o + 1]) << np.uint64(8))
+                | (np.uint64(rec[o + 2]) << np.uint64(16)) | (np.uint64(rec[o + 3]) << np.uint64(24))
+                | (np.uint64(rec[o + 4]) << np.uint64(32)) | (np.uint64(rec[o + 5]) << np.uint64(40))
+                | (np.uint64(rec[o + 6]) << np.uint64(48)) | (np.uint64(rec[o + 7]) << np.uint64(56)))
+    if k == 4:
+        return (np.uint64(rec[o]) | (np.uint64(rec[o + 1]) << np.uint64(8))
+                | (np.uint64(rec[o + 2]) << np.uint64(16)) | (np.uint64(rec[o + 3]) << np.uint64(24)))
     v = np.uint64(0)
     for i in range(k):
-        v |= np.uint64(buf[p + i]) << np.uint64(8 * i)
+        v |= np.uint64(rec[o + i]) << np.uint64(8 * i)
     return v
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _put(dst, o, k, v):                             # pragma: no cover - compiled
-    """Store the low ``k`` bytes of ``v`` little-endian at ``dst[o]`` (k = 8, 4, 2 or 1
-    written out, so the compiler merges them into one store)."""
+    """Store the low ``k`` bytes of ``v`` little-endian at ``dst[o]``."""
     if k == 8:
         dst[o] = np.uint8(v & np.uint64(0xFF))
         dst[o + 1] = np.uint8((v >> np.uint64(8)) & np.uint64(0xFF))
@@ -142,12 +178,49 @@ def _put(dst, o, k, v):                             # pragma: no cover - compile
             dst[o + i] = np.uint8((v >> np.uint64(8 * i)) & np.uint64(0xFF))
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _as_float(v, skind, s):                         # pragma: no cover - compiled
+    """A record field's value (its ``s`` bytes in ``v``) as float64, as numpy's
+    ``astype(float64)`` makes it."""
+    if skind == _S_F64:
+        return _bits_f64(v)
+    if skind == _S_F32:
+        return np.float64(_bits_f32(np.uint32(v & np.uint64(0xFFFFFFFF))))
+    if s < 8:
+        v &= (np.uint64(1) << np.uint64(8 * s)) - np.uint64(1)
+    if skind == _S_UNSIGNED:
+        return np.float64(v)
+    sh = np.uint64(64 - 8 * s)                      # signed: sign-extend from s bytes
+    return np.float64(np.int64(v << sh) >> np.int64(sh))
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _apply(x, a, b, op_code, op_value):             # pragma: no cover - compiled
+    """``x`` through the operations ``a..b-1`` in order (wire_units.apply_ops)."""
+    for q in range(a, b):
+        c, w = op_code[q], op_value[q]
+        if c == 0:
+            x = x * w
+        elif c == 1:
+            x = x + w
+        elif c == 2:
+            x = x - w
+        else:
+            x = x / w
+    return x
+
+
 @nb.njit(cache=True, nogil=True)
-def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, others,
-                 seen, scratch):                    # pragma: no cover - compiled
+def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, others, seen,
+                 skind, d_first, dst_off, op_start, op_code, op_value):  # pragma: no cover - compiled
     """Walk the MCAP records of a decompressed chunk from byte ``start``; decode every
     message of ``channel`` into ``out`` (records as a uint8 ``(rows, itemsize)`` array)
     from row ``row``; list every other record in ``others`` as (opcode, body, length).
+
+    Derived fields are rebuilt as their source field is stored: derivations
+    ``d_first[fn] .. d_first[fn + 1] - 1`` have field ``fn`` as source (record value
+    kind ``skind[fn]``), each writing float64 at ``dst_off[j]`` through operations
+    ``op_start[j] .. op_start[j + 1] - 1``.
 
     Returns ``(status, position, rows written, others listed, detail)``: ``position``
     is where the walk stopped (the record that did not fit for NO_ROOM: resume there),
@@ -157,14 +230,10 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
     end = buf.size
     n_other = 0
     nfield = wire_type.size
-    f64 = scratch.view(np.float64)
-    u32 = scratch[:4].view(np.uint32)
-    f32 = scratch[:4].view(np.float32)
-    u64 = scratch.view(np.uint64)
     r0 = row
     while pos + 9 <= end:
         op = buf[pos]
-        length = _le(buf, pos + 1, 8)
+        length = _get(buf, pos + 1, 8)
         body = pos + 9
         if length > np.uint64(end - body):
             break                                    # incomplete record: chunk ends here
@@ -180,26 +249,32 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
             return NO_ROOM, pos, row - r0, n_other, 0
         dst = out[row]
         p = body + _MSG_HEAD
+        stamp = row + 1
         while p < rec_end:
-            tag, p = _varint(buf, p, rec_end)
-            if p < 0:
-                return BAD_WIRE, pos, row - r0, n_other, 0
-            fn = np.int64(tag >> np.uint64(3))
-            wt = np.int64(tag & np.uint64(7))
-            if wt == 0:
-                v, p = _varint(buf, p, rec_end)
+            b0 = buf[p]
+            if b0 < 0x80:                            # one-byte tag (field numbers < 16)
+                tag = np.uint64(b0)
+                p += 1
+            else:
+                tag, p = _varint(buf, p, rec_end)
                 if p < 0:
                     return BAD_WIRE, pos, row - r0, n_other, 0
+            fn = np.int64(tag >> np.uint64(3))
+            wt = np.int64(tag & np.uint64(7))
+            if wt == 5:
+                if p + 4 > rec_end:
+                    return BAD_WIRE, pos, row - r0, n_other, 0
+                v = _get(buf, p, 4)
+                p += 4
             elif wt == 1:
                 if p + 8 > rec_end:
                     return BAD_WIRE, pos, row - r0, n_other, 0
-                v = _le(buf, p, 8)
+                v = _get(buf, p, 8)
                 p += 8
-            elif wt == 5:
-                if p + 4 > rec_end:
+            elif wt == 0:
+                v, p = _varint(buf, p, rec_end)
+                if p < 0:
                     return BAD_WIRE, pos, row - r0, n_other, 0
-                v = _le(buf, p, 4)
-                p += 4
             elif wt == 2:
                 ln, p = _varint(buf, p, rec_end)
                 if p < 0 or ln > np.uint64(rec_end - p):
@@ -214,82 +289,75 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
                 return WRONG_WIRE_TYPE, pos, row - r0, n_other, fn
             k = kind[fn]
             if k == _K_F32_TO_F64:
-                u32[0] = np.uint32(v)
-                f64[0] = np.float64(f32[0])
-                v = u64[0]
+                v = _f64_bits(np.float64(_bits_f32(np.uint32(v))))
             elif k == _K_BOOL:
                 v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
             _put(dst, offset[fn], size[fn], v)
-            seen[fn] = row + 1
-        for fn in range(1, nfield):                 # absent fields: proto3 default zero
-            if wire_type[fn] >= 0 and seen[fn] != row + 1:
-                o = offset[fn]
-                for i in range(size[fn]):
-                    dst[o + i] = 0
+            seen[fn] = stamp
+        for fn in range(1, nfield):
+            if wire_type[fn] < 0:
+                continue
+            if seen[fn] != stamp:                    # absent: proto3 default zero
+                _put(dst, offset[fn], size[fn], np.uint64(0))
+            for j in range(d_first[fn], d_first[fn + 1]):
+                x = _as_float(_get(dst, offset[fn], size[fn]), skind[fn], size[fn])
+                x = _apply(x, op_start[j], op_start[j + 1], op_code, op_value)
+                _put(dst, dst_off[j], 8, _f64_bits(x))
         row += 1
         pos = rec_end
     return OK, pos, row - r0, n_other, 0
 
 
 @nb.njit(cache=True, nogil=True)
-def _derive(out, src_off, src_size, src_kind, dst_off, op_start, op_code, op_value,
-            scratch):                               # pragma: no cover - compiled
-    u64 = scratch.view(np.uint64)
-    f64 = scratch.view(np.float64)
-    u32 = scratch[:4].view(np.uint32)
-    f32 = scratch[:4].view(np.float32)
+def _derive(out, src_off, src_size, src_kind, dst_off, op_start, op_code,
+            op_value):                              # pragma: no cover - compiled
     for r in range(out.shape[0]):
         rec = out[r]
         for j in range(src_off.size):
-            o, k, s = src_off[j], src_kind[j], src_size[j]
-            v = np.uint64(0)
-            for i in range(s):
-                v |= np.uint64(rec[o + i]) << np.uint64(8 * i)
-            if k == _S_F64:
-                u64[0] = v
-                x = f64[0]
-            elif k == _S_F32:
-                u32[0] = np.uint32(v)
-                x = np.float64(f32[0])
-            elif k == _S_UNSIGNED:
-                x = np.float64(v)
-            else:                                    # signed: sign-extend from s bytes
-                sh = np.uint64(64 - 8 * s)
-                x = np.float64(np.int64(v << sh) >> np.int64(sh))
-            for q in range(op_start[j], op_start[j + 1]):
-                c, w = op_code[q], op_value[q]
-                if c == 0:
-                    x = x * w
-                elif c == 1:
-                    x = x + w
-                elif c == 2:
-                    x = x - w
-                else:
-                    x = x / w
-            f64[0] = x
-            v = u64[0]
-            d = dst_off[j]
-            for i in range(8):
-                rec[d + i] = np.uint8((v >> np.uint64(8 * i)) & np.uint64(0xFF))
+            x = _as_float(_get(rec, src_off[j], src_size[j]), src_kind[j], src_size[j])
+            x = _apply(x, op_start[j], op_start[j + 1], op_code, op_value)
+            _put(rec, dst_off[j], 8, _f64_bits(x))
 
 
-def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missing: Sequence[str]) -> None:
-    """Compute each of ``missing`` (float64 fields of ``records``) from its wire field, in
-    place, with the derivation's float64 operations in order (bit for bit as
-    :func:`capstan.models.common.wire_units.apply_ops` on float64 arrays).
+@dataclass(frozen=True)
+class DeriveTable:
+    """Compiled form of the derivations of some float64 record fields (see
+    :func:`derive_table`); ``count`` 0 derives nothing."""
 
-    :raises DataFormatError: if a derivation is missing, its source is not a field of the
-        records, or a target is not float64.
+    src_off: np.ndarray
+    src_size: np.ndarray
+    src_kind: np.ndarray
+    dst_off: np.ndarray
+    op_start: np.ndarray
+    op_code: np.ndarray
+    op_value: np.ndarray
+
+    @property
+    def count(self) -> int:
+        """Number of derived fields."""
+        return int(self.src_off.size)
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The arrays in the order the kernels take them."""
+        return (self.src_off, self.src_size, self.src_kind, self.dst_off, self.op_start, self.op_code,
+                self.op_value)
+
+
+def derive_table(dtype: np.dtype, derivations: Sequence[Derivation], missing: Sequence[str]) -> DeriveTable:
+    """The table computing each of ``missing`` (float64 fields of ``dtype``) from its wire
+    field with the derivation's float64 operations in order.
+
+    :raises DataFormatError: if a derivation is missing, its source is not a field of
+        ``dtype``, or a target is not float64.
     """
-    dt = records.dtype
     by_field = {d.field: d for d in derivations}
     src_off, src_size, src_kind, dst_off, op_start, op_code, op_value = [], [], [], [], [0], [], []
     for name in missing:
         d = by_field.get(name)
-        if d is None or d.source not in dt.names:
+        if d is None or d.source not in dtype.names:
             raise DataFormatError(f"field '{name}' is neither stored nor derivable from a stored wire field")
-        sdt, soff = dt.fields[d.source][:2]
-        tdt, toff = dt.fields[name][:2]
+        sdt, soff = dtype.fields[d.source][:2]
+        tdt, toff = dtype.fields[name][:2]
         if tdt != np.float64:
             raise DataFormatError(f"derived field '{name}' is {tdt}, not float64")
         src_off.append(soff)
@@ -301,9 +369,53 @@ def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missin
             op_code.append(_OPS[op])
             op_value.append(v)
         op_start.append(len(op_code))
-    if not src_off or not len(records):
+    i64 = lambda x: np.asarray(x, np.int64)  # noqa: E731
+    return DeriveTable(i64(src_off), i64(src_size), i64(src_kind), i64(dst_off), i64(op_start),
+                       i64(op_code), np.asarray(op_value, np.float64))
+
+
+NO_DERIVATIONS = derive_table(np.dtype([("x", "f8")]), (), ())
+
+
+def kernel_derive(fields: FieldTable, derive: DeriveTable) -> tuple[np.ndarray, ...]:
+    """``derive`` indexed by source field number, as :func:`decode_chunk` takes it:
+    (skind, d_first, dst_off, op_start, op_code, op_value).
+
+    :raises DataFormatError: if a derivation's source is not a decoded field.
+    """
+    nfield = fields.wire_type.size
+    by_offset = {int(fields.offset[fn]): fn for fn in range(1, nfield) if fields.wire_type[fn] >= 0}
+    skind = np.zeros(nfield, np.int64)
+    groups: list[list[int]] = [[] for _ in range(nfield)]
+    for j in range(derive.count):
+        fn = by_offset.get(int(derive.src_off[j]))
+        if fn is None:
+            raise DataFormatError("a derivation's wire field is not decoded from the messages")
+        skind[fn] = derive.src_kind[j]
+        groups[fn].append(j)
+    d_first = np.zeros(nfield + 1, np.int64)
+    dst_off, op_start, op_code, op_value = [], [0], [], []
+    for fn in range(nfield):
+        d_first[fn + 1] = d_first[fn] + len(groups[fn])
+        for j in groups[fn]:
+            dst_off.append(int(derive.dst_off[j]))
+            a, b = int(derive.op_start[j]), int(derive.op_start[j + 1])
+            op_code.extend(derive.op_code[a:b].tolist())
+            op_value.extend(derive.op_value[a:b].tolist())
+            op_start.append(len(op_code))
+    return (skind, d_first, np.asarray(dst_off, np.int64), np.asarray(op_start, np.int64),
+            np.asarray(op_code, np.int64), np.asarray(op_value, np.float64))
+
+
+def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missing: Sequence[str]) -> None:
+    """Compute each of ``missing`` (float64 fields of ``records``) from its wire field, in
+    place, with the derivation's float64 operations in order (bit for bit as
+    :func:`capstan.models.common.wire_units.apply_ops` on float64 arrays).
+
+    :raises DataFormatError: as :func:`derive_table`.
+    """
+    table = derive_table(records.dtype, derivations, missing)
+    if not table.count or not len(records):
         return
-    rows = records.view(np.uint8).reshape(len(records), dt.itemsize)
-    _derive(rows, np.asarray(src_off, np.int64), np.asarray(src_size, np.int64),
-            np.asarray(src_kind, np.int64), np.asarray(dst_off, np.int64), np.asarray(op_start, np.int64),
-            np.asarray(op_code, np.int64), np.asarray(op_value, np.float64), np.zeros(8, np.uint8))
+    rows = records.view(np.uint8).reshape(len(records), records.dtype.itemsize)
+    _derive(rows, *table.arrays())
