@@ -203,11 +203,7 @@ class _Collector:
             if status == wire_decode.OK:
                 break
             need = est
-            if status != wire_decode.NO_ROOM:
-                topic = self.channels[ch].topic
-                what = (f"field {detail} ('{table.names[detail]}') has a wire type other than its schema's"
-                        if status == wire_decode.WRONG_WIRE_TYPE else "is not valid protobuf")
-                raise DataFormatError(f"{topic}: message {self.buffers[ch][1]} (chunk byte {pos}) {what}")
+            wire_decode.raise_for_status(status, detail, table, self.channels[ch].topic, self.buffers[ch][1], pos)
         o = others[:n_other]
         return o[:, 0].astype(np.uint8), o[:, 1], o[:, 2]
 

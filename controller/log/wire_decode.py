@@ -57,6 +57,19 @@ class FieldTable:
     names: tuple[str, ...]      # index = field number ('' for unused numbers)
 
 
+def raise_for_status(status: int, detail: int, table: FieldTable, topic: str, message: int, pos: int) -> None:
+    """Raise the error :func:`decode_chunk` reported (nothing for OK / NO_ROOM).
+
+    :raises DataFormatError: naming the topic, the message number, the chunk byte and,
+        for a wrong wire type, the field.
+    """
+    if status in (OK, NO_ROOM):
+        return
+    what = (f"field {detail} ('{table.names[detail]}') has a wire type other than its schema's"
+            if status == WRONG_WIRE_TYPE else "is not valid protobuf")
+    raise DataFormatError(f"{topic}: message {message} (chunk byte {pos}) {what}")
+
+
 def supported(record_dtype: np.dtype) -> bool:
     """True if every field of ``record_dtype`` is a little-endian scalar the compiled path
     writes (float64/32, int/uint 8-64 bit, bool); else the reader's numpy path is used."""
