@@ -478,13 +478,13 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
     return out
 
 
-def read_logs(paths: list[str | Path]) -> LogData:
+def read_logs(paths: list[str | Path], fields: tuple[str, ...] | None = None) -> LogData:
     """Read a rotated set of files (in the given order) as one log; config and meta
-    come from the first file.
+    come from the first file; ``fields`` as :func:`read_log`.
 
     :raises DataFormatError: as :func:`read_log`, or if the files' dtypes differ.
     """
-    parts = [read_log(p) for p in paths]
+    parts = [read_log(p, fields=fields) for p in paths]
     if not parts:
         raise DataFormatError("no log files given")
     first = parts[0]

@@ -432,3 +432,15 @@ def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missin
         return
     rows = records.view(np.uint8).reshape(len(records), records.dtype.itemsize)
     _derive(rows, *table.arrays())
+
+
+def warmup() -> None:
+    """Load (or compile, on a cold cache) the compiled kernels with the argument types the
+    reader passes, so that the first log read does not pay for it."""
+    table = FieldTable(np.full(2, -1, np.int64), np.zeros(2, np.int64), np.zeros(2, np.int64),
+                       np.zeros(2, np.int64), ("", ""))
+    rows = np.zeros((1, 8), np.uint8)
+    decode_chunk(np.frombuffer(b"", np.uint8), 0, 0, rows, 0, table.wire_type, table.offset, table.size,
+                 table.kind, np.empty((1, 3), np.int64), np.zeros(2, np.int64),
+                 *kernel_derive(table, NO_DERIVATIONS))
+    derive_fields(np.zeros(1, [("a", "<i8"), ("b", "<f8")]), [Derivation("b", "a", (("mul", 1.0),))], ["b"])
