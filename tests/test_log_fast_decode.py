@@ -57,9 +57,8 @@ def _decode(buf: np.ndarray, layout, dtype: np.dtype, derive=wire_decode.NO_DERI
     out = np.zeros(64, dtype)
     rows = out.view(np.uint8).reshape(len(out), dtype.itemsize)
     others = np.empty((len(buf) // 9 + 1, 3), np.int64)
-    status, _, n, _, detail = wire_decode.decode_chunk(
-        buf, 0, 1, rows, 0, table.wire_type, table.offset, table.size, table.kind, others,
-        np.zeros(table.wire_type.size, np.int64), *wire_decode.kernel_derive(table, derive))
+    status, _, n, _, detail = wire_decode.decode(buf, 0, 1, rows, 0, table, wire_decode.kernel_derive(table, derive),
+                                                 others, np.zeros(table.wire_type.size, np.int64))
     wire_decode.raise_for_status(status, detail, table, "/capstan/cycle", n, 0)
     return out[:n]
 

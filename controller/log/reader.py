@@ -100,6 +100,7 @@ class _Collector:
         #: channel -> full record dtype to decode into (a live log storing wire values)
         self.full: dict[int, np.dtype] = {}
         self.metadata: dict[str, dict[str, str]] = {}
+        self.zstd: zstandard.ZstdDecompressor | None = None
         #: the cycle channel decoded by the compiled path: (channel id, field table)
         self.fast: tuple[int, wire_decode.FieldTable] | None = None
 
@@ -195,9 +196,8 @@ class _Collector:
         while True:
             out = self.room(ch, need)
             rows = out.view(np.uint8).reshape(len(out), out.dtype.itemsize)
-            status, pos, n, k, detail = wire_decode.decode_chunk(
-                buf, pos, ch, rows, self.buffers[ch][1], table.wire_type, table.offset, table.size,
-                table.kind, others[n_other:], seen, *derive)
+            status, pos, n, k, detail = wire_decode.decode(buf, pos, ch, rows, self.buffers[ch][1], table,
+                                                           derive, others[n_other:], seen)
             self.buffers[ch][1] += n
             n_other += k
             if status == wire_decode.OK:
@@ -209,7 +209,9 @@ class _Collector:
 
     def walk_chunk(self, chunk: Chunk) -> None:
         if chunk.compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+            if self.zstd is None:                # one context for the file (not one per chunk)
+                self.zstd = zstandard.ZstdDecompressor()
+            data = self.zstd.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
         elif chunk.compression == "lz4":
             data = lz4.frame.decompress(chunk.data)
         elif chunk.compression == "":

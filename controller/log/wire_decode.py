@@ -55,6 +55,13 @@ class FieldTable:
     size: np.ndarray
     kind: np.ndarray
     names: tuple[str, ...]      # index = field number ('' for unused numbers)
+    #: the writer's fixed layout (schema.ProtoLayout): per field number the value's
+    #: offset and size in a message; the tag bytes' positions and values; message size
+    wire_offset: np.ndarray
+    wire_size: np.ndarray
+    tag_pos: np.ndarray
+    tag_val: np.ndarray
+    message_size: int
 
 
 def raise_for_status(status: int, detail: int, table: FieldTable, topic: str, message: int, pos: int) -> None:
@@ -109,7 +116,14 @@ def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
         else:
             raise DataFormatError(f"stored field '{name}' ({wdt}) cannot be decoded into {rdt}")
         off[number], size[number], kind[number] = roff, rdt.itemsize, k
-    return FieldTable(wt, off, size, kind, ("", *names))
+    woff = np.zeros(n, np.int64)
+    wsize = np.zeros(n, np.int64)
+    for number, name in enumerate(names, start=1):
+        wdt, wo = layout.wire_dtype.fields[name][:2]
+        woff[number], wsize[number] = wo, wdt.itemsize
+    tag_pos = np.flatnonzero(layout._tag_mask).astype(np.int64)
+    return FieldTable(wt, off, size, kind, ("", *names), woff, wsize, tag_pos,
+                      layout.template[tag_pos].astype(np.uint8), layout.message_size)
 
 
 @intrinsic
@@ -225,6 +239,7 @@ def _apply(x, a, b, op_code, op_value):             # pragma: no cover - compile
 
 @nb.njit(cache=True, nogil=True)
 def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, others, seen,
+                 wire_offset, wire_size, tag_pos, tag_val, message_size,
                  skind, d_first, dst_off, op_start, op_code, op_value):  # pragma: no cover - compiled
     """Walk the MCAP records of a decompressed chunk from byte ``start``; decode every
     message of ``channel`` into ``out`` (records as a uint8 ``(rows, itemsize)`` array)
@@ -238,6 +253,10 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
     Returns ``(status, position, rows written, others listed, detail)``: ``position``
     is where the walk stopped (the record that did not fit for NO_ROOM: resume there),
     ``detail`` the offending field number for WRONG_WIRE_TYPE.
+
+    A message of the writer's own fixed layout (``message_size`` bytes, every tag byte
+    at ``tag_pos`` equal to ``tag_val``) is read at the fixed value offsets; any other
+    message is parsed tag by tag.
     """
     pos = start
     end = buf.size
@@ -263,6 +282,30 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
         dst = out[row]
         p = body + _MSG_HEAD
         stamp = row + 1
+        fixed = np.int64(length) - _MSG_HEAD == message_size
+        if fixed:
+            for i in range(tag_pos.size):
+                if buf[p + tag_pos[i]] != tag_val[i]:
+                    fixed = False
+                    break
+        if fixed:
+            for fn in range(1, nfield):
+                if wire_type[fn] < 0:
+                    continue
+                v = _get(buf, p + wire_offset[fn], wire_size[fn])
+                k = kind[fn]
+                if k == _K_F32_TO_F64:
+                    v = _f64_bits(np.float64(_bits_f32(np.uint32(v))))
+                elif k == _K_BOOL:
+                    v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
+                _put(dst, offset[fn], size[fn], v)
+                for j in range(d_first[fn], d_first[fn + 1]):
+                    x = _as_float(v, skind[fn], size[fn])
+                    x = _apply(x, op_start[j], op_start[j + 1], op_code, op_value)
+                    _put(dst, dst_off[j], 8, _f64_bits(x))
+            row += 1
+            pos = rec_end
+            continue
         while p < rec_end:
             b0 = buf[p]
             if b0 < 0x80:                            # one-byte tag (field numbers < 16)
@@ -434,13 +477,21 @@ def derive_fields(records: np.ndarray, derivations: Sequence[Derivation], missin
     _derive(rows, *table.arrays())
 
 
+def decode(buf: np.ndarray, start: int, channel: int, rows: np.ndarray, row: int, table: FieldTable,
+           derive: tuple[np.ndarray, ...], others: np.ndarray,
+           seen: np.ndarray) -> tuple[int, int, int, int, int]:
+    """:func:`decode_chunk` with its tables (``derive`` from :func:`kernel_derive`)."""
+    return decode_chunk(buf, start, channel, rows, row, table.wire_type, table.offset, table.size, table.kind,
+                        others, seen, table.wire_offset, table.wire_size, table.tag_pos, table.tag_val,
+                        table.message_size, *derive)
+
+
 def warmup() -> None:
     """Load (or compile, on a cold cache) the compiled kernels with the argument types the
     reader passes, so that the first log read does not pay for it."""
-    table = FieldTable(np.full(2, -1, np.int64), np.zeros(2, np.int64), np.zeros(2, np.int64),
-                       np.zeros(2, np.int64), ("", ""))
+    z = np.zeros(2, np.int64)
+    table = FieldTable(np.full(2, -1, np.int64), z, z, z, ("", ""), z, z, z, np.zeros(2, np.uint8), -1)
     rows = np.zeros((1, 8), np.uint8)
-    decode_chunk(np.frombuffer(b"", np.uint8), 0, 0, rows, 0, table.wire_type, table.offset, table.size,
-                 table.kind, np.empty((1, 3), np.int64), np.zeros(2, np.int64),
-                 *kernel_derive(table, NO_DERIVATIONS))
+    decode(np.frombuffer(b"", np.uint8), 0, 0, rows, 0, table, kernel_derive(table, NO_DERIVATIONS),
+           np.empty((1, 3), np.int64), np.zeros(2, np.int64))
     derive_fields(np.zeros(1, [("a", "<i8"), ("b", "<f8")]), [Derivation("b", "a", (("mul", 1.0),))], ["b"])
