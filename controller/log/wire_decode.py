@@ -495,3 +495,35 @@ def warmup() -> None:
     decode(np.frombuffer(b"", np.uint8), 0, 0, rows, 0, table, kernel_derive(table, NO_DERIVATIONS),
            np.empty((1, 3), np.int64), np.zeros(2, np.int64))
     derive_fields(np.zeros(1, [("a", "<i8"), ("b", "<f8")]), [Derivation("b", "a", (("mul", 1.0),))], ["b"])
+
+
+@nb.njit(cache=True, nogil=True)
+def _copy_rows(dst, src, d_off, s_off, size):       # pragma: no cover - compiled
+    for r in range(dst.shape[0]):
+        for j in range(d_off.size):
+            for i in range(size[j]):
+                dst[r, d_off[j] + i] = src[r, s_off[j] + i]
+
+
+def copy_fields(dst: np.ndarray, src: np.ndarray, names: Sequence[str]) -> None:
+    """``dst[name] = src[name]`` for each of ``names``, in one row-major compiled pass
+    (numpy copies a field at a time, striding both arrays once per field); fields of
+    the same type in both, else numpy's assignment (which converts).
+
+    :raises ValueError: if the arrays differ in length.
+    """
+    if len(dst) != len(src):
+        raise ValueError(f"copy_fields: {len(dst)} rows into {len(src)}")
+    same = [n for n in names if dst.dtype.fields[n][0] == src.dtype.fields[n][0]]
+    for n in names:
+        if n not in same:
+            dst[n] = src[n]
+    if not same or not len(dst) or not (dst.flags.c_contiguous and src.flags.c_contiguous):
+        for n in same:
+            dst[n] = src[n]
+        return
+    d = dst.view(np.uint8).reshape(len(dst), dst.dtype.itemsize)
+    s = src.view(np.uint8).reshape(len(src), src.dtype.itemsize)
+    _copy_rows(d, s, np.array([dst.dtype.fields[n][1] for n in same], np.int64),
+               np.array([src.dtype.fields[n][1] for n in same], np.int64),
+               np.array([dst.dtype.fields[n][0].itemsize for n in same], np.int64))
