@@ -23,7 +23,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Message, McapRecord, Metadata, Schema
+from mcap.records import Channel, Chunk, DataEnd, Footer, Message, McapRecord, Metadata, Schema
 from mcap.reader import SeekingReader
 from mcap.stream_reader import StreamReader
 
@@ -349,6 +349,11 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
                         col.add(rec.channel_id, rec.data)
                 elif isinstance(rec, Footer):
                     truncated = False
+                elif isinstance(rec, DataEnd) and counts:
+                    # the summary section was read already (its counts): the rest is
+                    # chunk indexes, parsed record by record for nothing
+                    truncated = False
+                    break
         except DataFormatError as exc:
             raise DataFormatError(f"{p}: {exc}") from exc
         except (McapError, struct.error, zstandard.ZstdError, RuntimeError, ValueError) as exc:
