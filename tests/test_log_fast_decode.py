@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capstan.controller.log import wire_decode
+from capstan.controller.log import record_bytes, wire_decode
 from capstan.controller.log.reader import read_log
 from capstan.controller.log.schema import build_layout
 from capstan.models.common.errors import DataFormatError
@@ -102,7 +102,7 @@ def test_derived_fields_bit_exact_with_apply_ops() -> None:
     recs["small"] = rng.integers(-2**15, 2**15, 50)
     d = [Derivation("t_s", "t_ns", (("mul", 1e-9),)), Derivation("x", "small", (("mul", 20.0), ("div", 1000.0)))]
     target = np.dtype([(n, DTYPE[n]) for n in DTYPE.names])
-    table = wire_decode.derive_table(target, d, ("t_s", "x"))
+    table = record_bytes.derive_table(target, d, ("t_s", "x"))
     stored_only = build_layout(np.dtype([(n, STORED[n]) for n in STORED.names if n != "x"]))
     enc = stored_only.encode(recs[list(stored_only.dtype.names)])
     out = _decode(_records([bytes(r) for r in enc]), stored_only, target, table)

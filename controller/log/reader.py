@@ -30,7 +30,7 @@ from mcap.stream_reader import StreamReader
 from capstan.controller.log.ring import dtype_from_json
 from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENTS_TOPIC, STATS_TOPIC
 from capstan.controller.log.schema import ProtoLayout, build_layout
-from capstan.controller.log import wire_decode
+from capstan.controller.log import record_bytes, wire_decode
 from capstan.models.common.errors import DataFormatError
 from capstan.models.common.wire_units import Derivation, apply_ops
 
@@ -124,10 +124,10 @@ class _Collector:
             target = self.full.get(ch.id, layout.dtype)
             if ch.topic == CYCLE_TOPIC and self.fast is None and wire_decode.supported(target):
                 missing = tuple(n for n in target.names if n not in layout.dtype.names)
-                derive = wire_decode.NO_DERIVATIONS
+                derive = record_bytes.NO_DERIVATIONS
                 if missing and all(self.sources.get(n) in layout.dtype.names for n in missing) \
                         and all(target.fields[n][0] == np.float64 for n in missing):
-                    derive = wire_decode.derive_table(target, self.derivations, missing)
+                    derive = record_bytes.derive_table(target, self.derivations, missing)
                     self.derived = missing
                 table = wire_decode.field_table(layout, target)
                 self.fast = (ch.id, table, wire_decode.kernel_derive(table, derive))
@@ -414,7 +414,7 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
     cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
     if col.derived:                              # rebuilt while decoding; numpy-path rows here
         for a, b in col.slow_rows:
-            wire_decode.derive_fields(records[a:b], col.derivations, col.derived)
+            record_bytes.derive_fields(records[a:b], col.derivations, col.derived)
     elif "record_dtype" in cyc.metadata:
         records = rebuild_derived(records, col.full[cyc.id],
                                   col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p,
@@ -473,7 +473,7 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
                                   "wire field")
     if wire_decode.supported(record_dtype) and all(record_dtype.fields[n][0] == np.float64 for n in missing):
         try:                                     # compiled, one pass over the records
-            wire_decode.derive_fields(out, list(derivations.values()), missing)
+            record_bytes.derive_fields(out, list(derivations.values()), missing)
         except DataFormatError as exc:
             raise DataFormatError(f"{path}: {exc}") from exc
         return out

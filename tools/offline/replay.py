@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from capstan.controller.log.wire_decode import copy_fields
+from capstan.controller.log.record_bytes import copy_fields
 from capstan.models.common.errors import ConfigError, DataFormatError
 
 @dataclass
