@@ -134,6 +134,8 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
             if not col.channels:
                 raise DataFormatError(f"{p}: not a readable MCAP file: {exc}") from exc
             _log.warning("%s: log ends early (%s); reading what is complete", p, exc)
+    if progress is not None:
+        progress(total, total)                   # the summary section is not walked
     if truncated:
         _log.warning("%s: no footer (writer was killed?); using complete chunks only", p)
     return _assemble(p, col, truncated)
