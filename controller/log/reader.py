@@ -2,13 +2,13 @@
 the log metadata, events and stats.
 
 Reads by streaming (no summary needed), so a file whose writer was killed is read up
-to its last complete chunk and flagged ``truncated``. Cycle messages are collected
-per chunk with a small record walker and decoded in one vectorised step.
+to its last complete chunk and flagged ``truncated``. Each chunk is decompressed and
+walked by :class:`capstan.controller.log.chunk_walk.Collector`; the cycle messages are
+decoded by the compiled path of :mod:`capstan.controller.log.wire_decode`.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import logging
 import struct
@@ -16,27 +16,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-import lz4.frame
 import numpy as np
 import yaml
 import zstandard
-from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Message, McapRecord, Metadata, Schema
+from mcap.records import Channel, Chunk, DataEnd, Footer, Message, McapRecord, Metadata, Schema
 from mcap.reader import SeekingReader
 from mcap.stream_reader import StreamReader
 
-from capstan.controller.log.ring import dtype_from_json
 from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENTS_TOPIC, STATS_TOPIC
-from capstan.controller.log.schema import ProtoLayout, build_layout
+from capstan.controller.log import record_bytes, wire_decode
+from capstan.controller.log.chunk_walk import Collector
 from capstan.models.common.errors import DataFormatError
 from capstan.models.common.wire_units import Derivation, apply_ops
 
 _log = logging.getLogger(__name__)
 
-_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
-_MSG_HEAD = 22  # channel u16, sequence u32, log_time u64, publish_time u64
 
 
 @dataclass
@@ -74,113 +70,6 @@ class LogData:
         return out
 
 
-class _Collector:
-    """Gathers records while streaming; protobuf channels with a numpy dtype are
-    decoded chunk by chunk (small, cache-friendly arrays), others kept as raw messages."""
-
-    def __init__(self, counts: dict[int, int] | None = None) -> None:
-        #: channel -> message count from the file's summary (preallocated decoding)
-        self.counts = dict(counts or {})
-        #: channel -> [preallocated records, records filled]
-        self.buffers: dict[int, list[Any]] = {}
-        self.schemas: dict[int, Schema] = {}
-        self.channels: dict[int, Channel] = {}
-        self.payloads: dict[int, list[Any]] = {}
-        self.layouts: dict[int, ProtoLayout] = {}
-        #: channel -> full record dtype to decode into (a live log storing wire values)
-        self.full: dict[int, np.dtype] = {}
-        self.metadata: dict[str, dict[str, str]] = {}
-
-    def channel(self, ch: Channel) -> None:
-        self.channels[ch.id] = ch
-        self.payloads.setdefault(ch.id, [])
-        descr = ch.metadata.get("numpy_dtype") or (
-            self.metadata.get("capstan.log", {}).get("numpy_dtype") if ch.topic == CYCLE_TOPIC else None)
-        if ch.message_encoding == "protobuf" and descr:
-            schema = self.schemas.get(ch.schema_id)
-            f32 = tuple(json.loads(ch.metadata.get("float32_fields", "[]")))
-            layout = build_layout(dtype_from_json(json.loads(descr)),
-                                  schema.name if schema is not None else "capstan.Cycle", f32)
-            if schema is not None and schema.data != layout.schema:
-                raise DataFormatError(f"schema of {ch.topic} does not match its numpy dtype")
-            self.layouts[ch.id] = layout
-            if "record_dtype" in ch.metadata:
-                self.full[ch.id] = dtype_from_json(json.loads(ch.metadata["record_dtype"]))
-
-    def add(self, ch: int, blob: Any) -> None:
-        layout = self.layouts.get(ch)
-        if layout is None:
-            self.payloads[ch].append(blob)
-            return
-        raw = np.frombuffer(blob, dtype=np.uint8) if not isinstance(blob, np.ndarray) else blob.reshape(-1)
-        if raw.size % layout.message_size:
-            raise DataFormatError(f"{layout.message_name}: {raw.size} bytes is not a multiple of the "
-                                  f"message size {layout.message_size}")
-        self.store(ch, raw, 0, raw.size // layout.message_size, layout.message_size)
-
-    def store(self, ch: int, buf: np.ndarray, offset: int, n: int, stride: int) -> None:
-        """Decode ``n`` messages of channel ``ch`` at ``buf[offset + k * stride]``: into its
-        preallocated array while it has room (the summary's count), else as a new part."""
-        layout = self.layouts[ch]
-        dtype = self.full.get(ch, layout.dtype)
-        if ch in self.counts and ch not in self.buffers:
-            self.buffers[ch] = [np.empty(self.counts[ch], dtype), 0]
-        data = buf
-        buf = self.buffers.get(ch)
-        if buf is not None and buf[1] + n <= len(buf[0]) and not self.payloads[ch]:
-            layout.decode_span(data, offset, n, stride, dtype, out=buf[0][buf[1]:buf[1] + n])
-            buf[1] += n
-            return
-        if buf is not None and buf[1]:          # the summary's count was wrong: parts from here
-            self.payloads[ch].append(buf[0][:buf[1]])
-            buf[1] = 0
-        self.payloads[ch].append(layout.decode_span(data, offset, n, stride, dtype))
-
-    def walk_chunk(self, chunk: Chunk) -> None:
-        if chunk.compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
-        elif chunk.compression == "lz4":
-            data = lz4.frame.decompress(chunk.data)
-        elif chunk.compression == "":
-            data = chunk.data
-        else:
-            raise DataFormatError(f"unsupported chunk compression {chunk.compression!r}")
-        buf = np.frombuffer(data, dtype=np.uint8)
-        ops, bodies, lengths = _scan_records(buf)
-        is_msg = ops == _OP_MESSAGE
-        # schemas and channels first: a chunk may define a channel and carry its messages
-        for op, body, length in zip(ops[~is_msg].tolist(), bodies[~is_msg].tolist(),
-                                     lengths[~is_msg].tolist()):
-            if op == _OP_SCHEMA:
-                sch = Schema.read(ReadDataStream(io.BytesIO(data[body:body + length])))
-                self.schemas[sch.id] = sch
-            elif op == _OP_CHANNEL:
-                self.channel(Channel.read(ReadDataStream(io.BytesIO(data[body:body + length]))))
-        if is_msg.any():
-            m_body, m_len = bodies[is_msg], lengths[is_msg]
-            chans = buf[m_body].astype(np.int64) | (buf[m_body + 1].astype(np.int64) << 8)
-            for ch in np.unique(chans):
-                lst = self.payloads.get(int(ch))
-                if lst is None:
-                    continue
-                sel = chans == ch
-                start, size = m_body[sel] + _MSG_HEAD, m_len[sel] - _MSG_HEAD
-                fixed = self.channels[int(ch)].message_encoding == "protobuf" and np.all(size == size[0])
-                if fixed and int(ch) in self.layouts:
-                    # fixed-size messages: each run of evenly spaced ones (other channels'
-                    # messages break runs) decoded from the chunk in place
-                    stride = int(size[0]) + _MSG_HEAD + 9
-                    cuts = np.r_[0, np.flatnonzero(np.diff(start) != stride) + 1, len(start)]
-                    for a, b in zip(cuts[:-1].tolist(), cuts[1:].tolist()):
-                        self.store(int(ch), buf, int(start[a]), b - a, stride if b - a > 1 else int(size[0]))
-                elif fixed:                      # fixed-size messages: one blob
-                    self.add(int(ch), _gather(buf, start, int(size[0])))
-                elif int(ch) in self.layouts:
-                    self.add(int(ch), b"".join(data[a:a + b] for a, b in zip(start.tolist(), size.tolist())))
-                else:
-                    lst.extend(data[a:a + b] for a, b in zip(start.tolist(), size.tolist()))
-
-
 class _RecordReader(StreamReader):
     """The ``mcap`` streaming reader, passing over MessageIndex records unparsed: this
     module finds messages by walking chunks, and ``MessageIndex.read`` builds a Python
@@ -194,49 +83,14 @@ class _RecordReader(StreamReader):
         return super()._read_record(opcode, length)
 
 
-def _gather(buf: np.ndarray, start: np.ndarray, size: int) -> bytes:
-    """Concatenate ``buf[start[i]:start[i]+size]``; a strided view when evenly spaced."""
-    n = len(start)
-    stride = int(start[1] - start[0]) if n > 1 else size
-    if stride >= size and (n == 1 or np.all(np.diff(start) == stride)) \
-            and int(start[0]) + (n - 1) * stride + size <= buf.size:
-        rows = np.lib.stride_tricks.as_strided(buf[int(start[0]):], shape=(n, size), strides=(stride, 1))
-        return rows.tobytes()
-    return buf[start[:, None] + np.arange(size)[None, :]].tobytes()
-
-
-def _scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(opcode, body offset, body length) of every complete record in a chunk's bytes.
-
-    Runs of records with an identical 9-byte header (same opcode and length, i.e. the
-    fixed-size cycle messages) are found with one vectorised comparison per run.
-    """
-    ops, bodies, lengths = [], [], []
-    pos, end = 0, buf.size
-    while pos + 9 <= end:
-        length = int.from_bytes(buf[pos + 1:pos + 9].tobytes(), "little")
-        size = 9 + length
-        if pos + size > end:
-            break
-        n_max = min((end - pos) // size, 8192)
-        k = 1
-        if n_max > 1:
-            heads = np.lib.stride_tricks.as_strided(buf[pos:], shape=(n_max, 9), strides=(size, 1))
-            same = (heads == heads[0]).all(axis=1)
-            k = n_max if same.all() else int(np.argmin(same))
-        ops.append(np.full(k, buf[pos], np.uint8))
-        bodies.append(pos + 9 + size * np.arange(k, dtype=np.int64))
-        lengths.append(np.full(k, length, np.int64))
-        pos += size * k
-    if not ops:
-        return np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(ops), np.concatenate(bodies), np.concatenate(lengths)
-
-
-def read_log(path: str | Path, progress: Callable[[int, int], None] | None = None) -> LogData:
+def read_log(path: str | Path, progress: Callable[[int, int], None] | None = None,
+             fields: tuple[str, ...] | None = None) -> LogData:
     """Read a capstan MCAP log.
 
     :param progress: called as ``progress(bytes_done, bytes_total)`` after each chunk.
+    :param fields: cycle fields to read (default all); ``records`` then holds these
+        (those the log has) plus the wire fields they are rebuilt from. Reading fewer
+        fields is faster (replay needs a third of them).
     :raises DataFormatError: if the file is missing, not MCAP, or not a capstan log
         (no ``/capstan/cycle`` channel with a numpy dtype), or its messages do not match
         their schema.
@@ -246,7 +100,8 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
         fh = open(p, "rb")
     except OSError as exc:
         raise DataFormatError(f"{p}: cannot open: {exc.strerror or exc}") from exc
-    col = _Collector(_summary_counts(fh))
+    counts, derivations_json = _summary_counts(fh)
+    col = Collector(counts, tuple(fields) if fields is not None else None, derivations_json)
     fh.seek(0)
     truncated = True
     total = p.stat().st_size
@@ -268,29 +123,43 @@ def read_log(path: str | Path, progress: Callable[[int, int], None] | None = Non
                         col.add(rec.channel_id, rec.data)
                 elif isinstance(rec, Footer):
                     truncated = False
+                elif isinstance(rec, DataEnd) and counts:
+                    # the summary section was read already (its counts): the rest is
+                    # chunk indexes, parsed record by record for nothing
+                    truncated = False
+                    break
         except DataFormatError as exc:
             raise DataFormatError(f"{p}: {exc}") from exc
         except (McapError, struct.error, zstandard.ZstdError, RuntimeError, ValueError) as exc:
             if not col.channels:
                 raise DataFormatError(f"{p}: not a readable MCAP file: {exc}") from exc
             _log.warning("%s: log ends early (%s); reading what is complete", p, exc)
+    if progress is not None:
+        progress(total, total)                   # the summary section is not walked
     if truncated:
         _log.warning("%s: no footer (writer was killed?); using complete chunks only", p)
     return _assemble(p, col, truncated)
 
 
-def _summary_counts(fh: Any) -> dict[int, int]:
-    """Messages per channel from the file's summary ({} if it has none: cut off)."""
+def _summary_counts(fh: Any) -> tuple[dict[int, int], str | None]:
+    """Messages per channel from the file's summary ({} if it has none: cut off), and the
+    wire derivations from its metadata index (None if none or no summary)."""
     try:
-        summary = SeekingReader(fh).get_summary()
+        reader = SeekingReader(fh)
+        summary = reader.get_summary()
+        if summary is None or summary.statistics is None:
+            return {}, None
+        derivations = None
+        if any(ix.name == DERIVATIONS_META for ix in summary.metadata_indexes):
+            for meta in reader.iter_metadata():
+                if meta.name == DERIVATIONS_META:
+                    derivations = meta.metadata.get("derivations")
     except (McapError, struct.error, ValueError, OSError, EOFError):
-        return {}
-    if summary is None or summary.statistics is None:
-        return {}
-    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}
+        return {}, None
+    return {int(k): int(v) for k, v in summary.statistics.channel_message_counts.items()}, derivations
 
 
-def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
+def _decode_channel(p: Path, col: Collector, topic: str) -> np.ndarray | None:
     ch = next((c for c in col.channels.values() if c.topic == topic), None)
     if ch is None:
         return None
@@ -304,14 +173,17 @@ def _decode_channel(p: Path, col: _Collector, topic: str) -> np.ndarray | None:
     return np.concatenate(parts) if parts else np.zeros(0, col.full.get(ch.id, layout.dtype))
 
 
-def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
+def _assemble(p: Path, col: Collector, truncated: bool) -> LogData:
     meta = col.metadata.get("capstan.log", {})
     records = _decode_channel(p, col, CYCLE_TOPIC)
     if records is None:
         raise DataFormatError(f"{p}: no {CYCLE_TOPIC} channel; not a capstan log")
     cyc = next(c for c in col.channels.values() if c.topic == CYCLE_TOPIC)
-    if "record_dtype" in cyc.metadata:
-        records = rebuild_derived(records, dtype_from_json(json.loads(cyc.metadata["record_dtype"])),
+    if col.derived:                              # rebuilt while decoding; numpy-path rows here
+        for a, b in col.slow_rows:
+            record_bytes.derive_fields(records[a:b], col.derivations, col.derived)
+    elif "record_dtype" in cyc.metadata:
+        records = rebuild_derived(records, col.full[cyc.id],
                                   col.metadata.get(DERIVATIONS_META, {}).get("derivations"), p,
                                   stored_fields=col.layouts[cyc.id].dtype.names)
     stats = _decode_channel(p, col, STATS_TOPIC)
@@ -325,7 +197,8 @@ def _assemble(p: Path, col: _Collector, truncated: bool) -> LogData:
                 raise DataFormatError(f"{p}: unreadable event message: {exc}") from exc
     config_yaml = col.metadata.get("capstan.config", {}).get("yaml", "")
     try:
-        config = yaml.safe_load(config_yaml) if config_yaml else {}
+        # libyaml's safe loader when built in (the pure-Python one takes tens of ms)
+        config = yaml.load(config_yaml, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) if config_yaml else {}
     except yaml.YAMLError as exc:
         raise DataFormatError(f"{p}: stored config is not valid YAML: {exc}") from exc
     return LogData(p, records, config_yaml, config if isinstance(config, dict) else {}, meta,
@@ -365,17 +238,28 @@ def rebuild_derived(stored: np.ndarray, record_dtype: np.dtype, derivations_json
         if d is None or d.source not in have:
             raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
                                   "wire field")
+    if wire_decode.supported(record_dtype) and all(record_dtype.fields[n][0] == np.float64 for n in missing):
+        try:                                     # compiled, one pass over the records
+            record_bytes.derive_fields(out, list(derivations.values()), missing)
+        except DataFormatError as exc:
+            raise DataFormatError(f"{path}: {exc}") from exc
+        return out
+    for name in missing:
+        d = derivations.get(name)
+        if d is None or d.source not in have:
+            raise DataFormatError(f"{path}: field '{name}' is neither stored nor derivable from a stored "
+                                  "wire field")
         out[name] = apply_ops(stored[d.source].astype(np.float64), d.ops)
     return out
 
 
-def read_logs(paths: list[str | Path]) -> LogData:
+def read_logs(paths: list[str | Path], fields: tuple[str, ...] | None = None) -> LogData:
     """Read a rotated set of files (in the given order) as one log; config and meta
-    come from the first file.
+    come from the first file; ``fields`` as :func:`read_log`.
 
     :raises DataFormatError: as :func:`read_log`, or if the files' dtypes differ.
     """
-    parts = [read_log(p) for p in paths]
+    parts = [read_log(p, fields=fields) for p in paths]
     if not parts:
         raise DataFormatError("no log files given")
     first = parts[0]

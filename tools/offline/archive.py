@@ -226,9 +226,12 @@ def is_archive(path: str | Path) -> bool:
         return False
 
 
-def read_any(path: str | Path, progress: Callable[[int, int], None] | None = None) -> LogData:
+def read_any(path: str | Path, progress: Callable[[int, int], None] | None = None,
+             fields: tuple[str, ...] | None = None) -> LogData:
     """Read a live log or an archive into the same :class:`LogData`.
 
+    :param fields: for a live log, the cycle fields to read (see :func:`read_log`); an
+        archive is read whole.
     :raises DataFormatError: as :func:`read_log` / :func:`read_archive`.
     """
-    return read_archive(path) if is_archive(path) else read_log(path, progress)
+    return read_archive(path) if is_archive(path) else read_log(path, progress, fields)

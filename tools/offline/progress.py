@@ -1,6 +1,7 @@
-"""A minimal progress bar on stderr for the offline log tools (replay, export).
+"""The progress bar of the offline log tools (replay, export), drawn by ``rich`` on stderr.
 
-Shown only when enabled (long logs); redraws at most ten times a second.
+Shown only when enabled (long logs). Redrawn from :meth:`Progress.update` at most ten
+times a second (no refresh thread).
 """
 
 from __future__ import annotations
@@ -9,12 +10,16 @@ import sys
 import time
 from typing import TextIO
 
+from rich.console import Console
+from rich.progress import BarColumn, TaskProgressColumn, TextColumn, TimeElapsedColumn
+from rich.progress import Progress as _RichProgress
+
 
 class Progress:
-    """``label [#####.....]  45%`` on one stderr line.
+    """``label ━━━━━━━━━╺━━━━━━━  45% 0:00:01`` on stderr.
 
     :param label: text before the bar.
-    :param enabled: draw nothing if False (short logs, ``--json`` pipelines may keep it).
+    :param enabled: draw nothing if False (short logs).
     :param stream: where to draw (stderr).
     """
 
@@ -22,26 +27,29 @@ class Progress:
         self.label = label
         self.enabled = enabled
         self.stream = stream if stream is not None else sys.stderr
+        self._bar: _RichProgress | None = None
+        self._task = 0
         self._last = 0.0
-        self._drawn = False
 
     def update(self, done: int, total: int) -> None:
         """Report ``done`` of ``total`` units."""
         if not self.enabled or total <= 0:
             return
+        if self._bar is None:
+            console = Console(file=self.stream, highlight=False)
+            self._bar = _RichProgress(TextColumn(self.label), BarColumn(), TaskProgressColumn(),
+                                      TimeElapsedColumn(), console=console, auto_refresh=False)
+            self._bar.start()
+            self._task = self._bar.add_task(self.label, total=total)
+        self._bar.update(self._task, completed=min(done, total), total=total)
         now = time.monotonic()
-        if now - self._last < 0.1 and done < total:
-            return
-        self._last = now
-        frac = min(1.0, done / total)
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%")
-        self.stream.flush()
-        self._drawn = True
+        if now - self._last >= 0.1 or done >= total:
+            self._last = now
+            self._bar.refresh()
 
     def done(self) -> None:
-        """Finish the line."""
-        if self._drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._drawn = False
+        """Finish the bar (its last state stays on the line)."""
+        if self._bar is not None:
+            self._bar.refresh()
+            self._bar.stop()
+            self._bar = None

@@ -15,6 +15,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from capstan.controller.log.record_bytes import copy_fields
 from capstan.models.common.errors import ConfigError, DataFormatError
 
 @dataclass
@@ -93,8 +94,7 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
         if name not in (records.dtype.names or ()):
             raise DataFormatError(f"log has no field '{name}' needed for replay")
     out = np.zeros(n, dtype)
-    for name in input_fields:
-        out[name] = records[name]
+    copy_fields(out, records, input_fields)
     # the loop's gating: cycles it did not step (arming) and the factor it applied
     gated = all(f in (records.dtype.names or ()) for f in LOOP_GATING_FIELDS)
     if gated:
