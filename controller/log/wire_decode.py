@@ -120,6 +120,18 @@ def field_table(layout: ProtoLayout, record_dtype: np.dtype) -> FieldTable:
                       layout.template[tag_pos].astype(np.uint8), layout.message_size)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _store(dst, off, sz, k, v):
+    """Write one field's wire value ``v`` into the record bytes as its stored type (a float32
+    widened to float64, a bool normalised to 0/1); returns the stored bit pattern."""
+    if k == _K_F32_TO_F64:
+        v = f64_bits(np.float64(bits_f32(np.uint32(v))))
+    elif k == _K_BOOL:
+        v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
+    put_le(dst, off, sz, v)
+    return v
+
+
 @nb.njit(cache=True, nogil=True)
 def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, others, seen,
                  wire_offset, wire_size, tag_pos, tag_val, message_size,
@@ -175,13 +187,7 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
             for fn in range(1, nfield):
                 if wire_type[fn] < 0:
                     continue
-                v = get_le(buf, p + wire_offset[fn], wire_size[fn])
-                k = kind[fn]
-                if k == _K_F32_TO_F64:
-                    v = f64_bits(np.float64(bits_f32(np.uint32(v))))
-                elif k == _K_BOOL:
-                    v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
-                put_le(dst, offset[fn], size[fn], v)
+                v = _store(dst, offset[fn], size[fn], kind[fn], get_le(buf, p + wire_offset[fn], wire_size[fn]))
                 for j in range(d_first[fn], d_first[fn + 1]):
                     x = as_float(v, skind[fn], size[fn])
                     x = apply_ops_jit(x, op_start[j], op_start[j + 1], op_code, op_value)
@@ -226,12 +232,7 @@ def decode_chunk(buf, start, channel, out, row, wire_type, offset, size, kind, o
                 continue                             # unknown field: skipped, as protobuf does
             if wire_type[fn] != wt:
                 return WRONG_WIRE_TYPE, pos, row - r0, n_other, fn
-            k = kind[fn]
-            if k == _K_F32_TO_F64:
-                v = f64_bits(np.float64(bits_f32(np.uint32(v))))
-            elif k == _K_BOOL:
-                v = np.uint64(1) if v != np.uint64(0) else np.uint64(0)
-            put_le(dst, offset[fn], size[fn], v)
+            _store(dst, offset[fn], size[fn], kind[fn], v)
             seen[fn] = stamp
         for fn in range(1, nfield):
             if wire_type[fn] < 0:
