@@ -9,6 +9,9 @@ abort code and its CiA 301 text; no answer becomes a
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+from typing import Iterator
+
 import canopen
 from canopen.objectdictionary import ODVariable
 
@@ -39,6 +42,21 @@ def _variable(node: canopen.RemoteNode, index: int, sub: int) -> canopen.sdo.bas
     return obj if isinstance(node.object_dictionary[index], ODVariable) else obj[sub]
 
 
+@contextmanager
+def _translated(node: canopen.RemoteNode, index: int, sub: int, where: str) -> Iterator[canopen.sdo.base.SdoVariable]:
+    """The SDO variable ``index:sub``, with the canopen errors of its transfer raised as the
+    project's (``where`` names the access in every message)."""
+    if not has_object(node, index, sub):
+        raise DriverError(f"{where}: the EDS does not list this object")
+    try:
+        yield _variable(node, index, sub)
+    except canopen.SdoAbortedError as exc:
+        raise SdoRefusedError(f"{where} refused: abort 0x{exc.code:08X} "
+                              f"({exc.CODES.get(exc.code, 'unknown abort code')})", exc.code) from exc
+    except canopen.SdoCommunicationError as exc:
+        raise DeviceTimeoutError(f"{where}: no answer ({exc})") from exc
+
+
 def sdo_read(node: canopen.RemoteNode, index: int, sub: int = 0) -> int:
     """Value of ``index:sub`` read over SDO (integer objects).
 
@@ -47,15 +65,8 @@ def sdo_read(node: canopen.RemoteNode, index: int, sub: int = 0) -> int:
     :raises DriverError: if the EDS does not list the object.
     """
     where = f"drive {node.id}: SDO read 0x{index:04X}:{sub:02X}"
-    if not has_object(node, index, sub):
-        raise DriverError(f"{where}: the EDS does not list this object")
-    try:
-        return int(_variable(node, index, sub).raw)
-    except canopen.SdoAbortedError as exc:
-        raise SdoRefusedError(f"{where} refused: abort 0x{exc.code:08X} "
-                              f"({exc.CODES.get(exc.code, 'unknown abort code')})", exc.code) from exc
-    except canopen.SdoCommunicationError as exc:
-        raise DeviceTimeoutError(f"{where}: no answer ({exc})") from exc
+    with _translated(node, index, sub, where) as var:
+        return int(var.raw)
 
 
 def sdo_write(node: canopen.RemoteNode, index: int, sub: int, value: int) -> None:
@@ -66,12 +77,5 @@ def sdo_write(node: canopen.RemoteNode, index: int, sub: int, value: int) -> Non
     :raises DriverError: if the EDS does not list the object.
     """
     where = f"drive {node.id}: SDO write 0x{index:04X}:{sub:02X} = {value} (0x{value & 0xFFFFFFFF:X})"
-    if not has_object(node, index, sub):
-        raise DriverError(f"{where}: the EDS does not list this object")
-    try:
-        _variable(node, index, sub).raw = value
-    except canopen.SdoAbortedError as exc:
-        raise SdoRefusedError(f"{where} refused: abort 0x{exc.code:08X} "
-                              f"({exc.CODES.get(exc.code, 'unknown abort code')})", exc.code) from exc
-    except canopen.SdoCommunicationError as exc:
-        raise DeviceTimeoutError(f"{where}: no answer ({exc})") from exc
+    with _translated(node, index, sub, where) as var:
+        var.raw = value
