@@ -17,7 +17,7 @@ from capstan.drivers.interfaces import LinkStats
 from capstan.drivers.serial.loadcell_protocol import FRAME_LEN, LoadCellParser
 from capstan.drivers.serial.xbus import XbusParser
 from capstan.drivers.serial.xsens import XsensConfig, output_configuration
-from capstan.drivers.serial.xsens_protocol import mtdata2_max_len
+from capstan.drivers.serial.xsens_protocol import mtdata2_max_len, mtdata2_well_formed, parse_mtdata2
 from capstan.models.common.errors import ProtocolError
 
 FAKE_HEADERS = [
@@ -148,6 +148,52 @@ def test_inner_frame_of_a_genuine_frame_does_not_cost_the_outer_one() -> None:
     # fed at once there is nothing pending: only the outer frame
     q = XbusParser()
     assert [_msg(m, d) for m, d in q.feed(outer)] == [outer]
+
+
+def _truncated_with_lucky_checksum(nxt: bytes) -> bytes:
+    """The first half of a packet whose claimed length runs into ``nxt`` and whose bytes up
+    to that end sum to a valid checksum: the one-in-256 case of a truncated frame."""
+    whole = _packet(7, (0.1, 0.2, 0.3, 0.4), (0.0, 0.0, 0.0))
+    half = bytearray(whole[:len(whole) // 2])
+    end = 4 + whole[3] + 1                          # the claimed frame's end, inside nxt
+    assert len(half) < end < len(half) + len(nxt)
+    claimed = bytes(half) + nxt[:end - len(half)]
+    half[-1] = (half[-1] - sum(claimed[1:])) & 0xFF  # one damaged byte makes it checksum-valid
+    return bytes(half)
+
+
+@pytest.mark.parametrize("validated", [True, False])
+def test_checksum_valid_false_frame_does_not_swallow_the_next_packet(validated: bool) -> None:
+    """Xbus checks with one byte, so a truncated frame followed by a genuine one is
+    checksum-valid by chance once in 256. The MTData2 structure check rejects it and the
+    genuine packet inside its claimed length is still returned; without it, it is lost."""
+    nxt = _packet(9, (0.5, 0.5, 0.5, 0.5), (0.1, 0.2, 0.3))
+    after = _packet(10, (0.5, 0.5, 0.5, 0.5), (0.1, 0.2, 0.3))
+    stream = _packet(6, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0)) + _truncated_with_lucky_checksum(nxt) + nxt + after
+    for chunk in (len(stream), 1, 7):
+        p = XbusParser(validators={0x36: mtdata2_well_formed} if validated else None)
+        got = []
+        for i in range(0, len(stream), chunk):
+            got += p.feed(stream[i:i + chunk])
+        counters = []
+        for _, d in got:
+            try:
+                counters.append(parse_mtdata2(d).packet_counter)
+            except ProtocolError:
+                counters.append(None)
+        if validated:
+            assert counters == [6, 9, 10], chunk
+            assert p.stats.bad_frames == 1
+        else:
+            assert counters == [6, None, 10], chunk
+
+
+def test_mtdata2_structure_check() -> None:
+    good = _packet(1, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))[4:-1]
+    assert mtdata2_well_formed(good) and mtdata2_well_formed(b"")
+    assert not mtdata2_well_formed(good[:-1])          # last item overruns
+    assert not mtdata2_well_formed(good + b"\x10\x20")  # trailing bytes shorter than an item header
+    assert not mtdata2_well_formed(good + b"\x10\x20\x05\x00")  # item claims more than is there
 
 
 def test_random_bytes_exact_byte_accounting() -> None:

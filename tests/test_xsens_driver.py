@@ -160,7 +160,9 @@ def test_counter_gaps_and_bad_frames_counted(pty: PtyPair) -> None:
         samples = _collect(imu, 0.1)
     imu.close()
     st = imu.stats
-    # 3 dropped counter values + 2 frames lost to bad checksums + 1 truncated; on a loaded host
+    # 3 dropped counter values + 2 frames lost to bad checksums + 1 truncated (the frame behind
+    # the truncated one is not lost even when the false candidate is checksum-valid by chance:
+    # see test_stream_bounds.test_checksum_valid_false_frame_does_not_swallow_the_next_packet); on a loaded host
     # the simulated UART may also overrun (bytes the reader did not take in time are discarded,
     # as a real UART's FIFO does): each frame hit by that is one more gap, never fewer
     injected = 3 + 2 + 1

@@ -7,7 +7,7 @@ see :mod:`capstan.drivers.serial.xsens_protocol`.
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import Mapping
+from typing import Callable, Mapping
 
 from capstan.drivers.interfaces import LinkStats
 from capstan.models.common.errors import ProtocolError
@@ -47,6 +47,7 @@ class _Candidate(IntEnum):
     IMPOSSIBLE = 1  # length above the bound for its MID (or an invalid extended length)
     BAD_CHECKSUM = 2
     VALID = 3
+    MALFORMED = 4  # checksum valid, but the payload fails its MID's structure check
 
 
 class XbusParser:
@@ -75,8 +76,14 @@ class XbusParser:
     counts one ``bad_frames`` and the hunt resumes one byte after its preamble; each
     loss of sync (garbage or a rejected candidate after a valid frame) counts one
     ``resyncs``; ``bytes_skipped`` counts every byte that belongs to no returned frame.
-    ``stats.good_frames`` is left to the consumer (it may still reject a checksum-valid
-    but malformed payload).
+    ``stats.good_frames`` is left to the consumer.
+
+    Structure checks: the checksum is one byte, so about one in 256 candidates that start
+    at a false preamble (inside a truncated frame, say) is checksum-valid by chance and would
+    swallow the start of the genuine frame behind it. ``validators[mid]`` (a predicate on the
+    data) is applied to every checksum-valid candidate of that MID; one that fails is
+    treated like a bad checksum (counted bad, hunt resumes one byte after its preamble), so
+    the genuine frame inside it is still found.
 
     Buffered bytes are bounded by one maximal frame (bound + 7 bytes).
 
@@ -84,12 +91,15 @@ class XbusParser:
     :param bid: bus identifier expected in byte 1 (0xFF for messages to/from the host).
     :param max_data_len: bound on the data length of any MID not in ``limits`` [bytes].
     :param limits: per-MID bound on the data length [bytes].
+    :param validators: per-MID structure check of the data (True: well formed).
     :raises ProtocolError: if a bound is outside 0..2048.
     """
 
     def __init__(self, stats: LinkStats | None = None, bid: int = BID_MASTER,
-                 max_data_len: int = MAX_DATA_LEN, limits: Mapping[int, int] | None = None) -> None:
+                 max_data_len: int = MAX_DATA_LEN, limits: Mapping[int, int] | None = None,
+                 validators: Mapping[int, Callable[[bytes], bool]] | None = None) -> None:
         self.stats = stats if stats is not None else LinkStats()
+        self._validators = dict(validators or {})
         self._buf = bytearray()
         self._sync = bytes((PREAMBLE, bid))
         self._in_sync = False
@@ -167,6 +177,9 @@ class XbusParser:
             return _Candidate.INCOMPLETE, 0, 0
         if sum(buf[j + 1:end]) & 0xFF:
             return _Candidate.BAD_CHECKSUM, hdr, end
+        check = self._validators.get(buf[j + 2])
+        if check is not None and not check(bytes(buf[j + hdr:end - 1])):
+            return _Candidate.MALFORMED, hdr, end
         return _Candidate.VALID, hdr, end
 
     def _look_ahead(self, buf: bytearray, j: int, n: int, out: list[tuple[int, bytes]]) -> None:

@@ -33,7 +33,8 @@ from capstan.drivers.serial.xsens_config import (  # noqa: F401  (re-exported: t
     BASE_RATE_HZ, JointAxis, OrientationOutput, XsensConfig, output_configuration, packet_size_bytes,
 )
 from capstan.drivers.serial.xsens_protocol import (
-    LEN_EXTENDED, MAX_DATA_LEN, Mid, MtData2, Precision, XbusParser, mtdata2_max_len, parse_mtdata2,
+    LEN_EXTENDED, MAX_DATA_LEN, Mid, MtData2, Precision, XbusParser, mtdata2_max_len, mtdata2_well_formed,
+    parse_mtdata2,
 )
 from capstan.drivers.serial.xsens_startup import XbusLink, configure_output, find_device, switch_baudrate
 from capstan.models.common.errors import DriverError, ProtocolError
@@ -107,7 +108,7 @@ class XsensImu:
         self.last_packet: MtData2 | None = None
         self._port = port
         self._fd = -1
-        self._parser = XbusParser(self.stats)
+        self._parser = XbusParser(self.stats, validators={Mid.MT_DATA2: mtdata2_well_formed})
         self._last_counter = -1
         self._out_cfg = output_configuration(config)
         self.found_baudrate = 0

@@ -272,6 +272,17 @@ def mtdata2_max_len(items: list[tuple[int, int]]) -> int:
     return total
 
 
+def mtdata2_well_formed(data: bytes) -> bool:
+    """True if the MTData2 items (2-byte XDI, 1-byte size, data) exactly cover ``data``.
+
+    The structure check the Xbus parser applies before it accepts a checksum-valid frame.
+    """
+    i, n = 0, len(data)
+    while n - i >= 3:
+        i += 3 + data[i + 2]
+    return i == n
+
+
 def parse_mtdata2(data: bytes) -> MtData2:
     """Decode the data of one MTData2 message.
 

@@ -84,13 +84,14 @@ def decode_xsens(path: Path, config: Path | None = None) -> Iterator[dict[str, A
     """
     from capstan.drivers.serial.xsens import XsensConfig, joint_from_mtdata2
     from capstan.drivers.serial.xsens_protocol import (
-        CoordSys, Mid, XbusParser, decode_output_configuration, error_name, parse_mtdata2, xdi_name,
+        CoordSys, Mid, XbusParser, decode_output_configuration, error_name, mtdata2_well_formed, parse_mtdata2,
+        xdi_name,
     )
 
     sec = _section(config, "imu", "xsens")
     imu_cfg = XsensConfig.from_mapping(sec) if sec is not None else None
     stats = LinkStats()
-    parser = XbusParser(stats)
+    parser = XbusParser(stats, validators={Mid.MT_DATA2: mtdata2_well_formed})
     n_bytes = 0
     last_counter = -1
     frame = 0
