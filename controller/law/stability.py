@@ -151,7 +151,8 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     dom_abs, dom_hz = float(abs(poles[i_dom])), float(abs(np.angle(poles[i_dom])) / (2.0 * math.pi * dt))
     f = np.geomspace(0.05, 0.5 / dt * 0.9999, 12000)
     C, L = loop_response(cfg, p, st.io_delay_cycles, f)
-    mag_db = 20.0 * np.log10(np.abs(L))
+    with np.errstate(divide="ignore"):     # L = 0 (no feedback at all): -inf dB, no crossing
+        mag_db = 20.0 * np.log10(np.abs(L))
     ph = np.unwrap(np.angle(L))
     pm, f_pm = math.inf, math.nan
     for i in _crossings(mag_db):
