@@ -21,7 +21,7 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
-        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
+        inertia_comp_kg_m2: 0.3      # + J_c x acceleration on the command (0 = off), gated at rest
         acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
         acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
       filters:
