@@ -29,8 +29,9 @@ Control law (per cycle, ``k``)::
                                    motor velocity's backward difference / dt through a 1st-order
                                    low-pass (feedback.acceleration_cutoff_hz); the loop then
                                    sees J_m - J_c (controller/law/loop_model.py checks it);
-                                   x the feedforward's rest gate on dq_out: the differentiated
-                                   gyro noise (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
+                                   x the feedforward's rest gate on dq_out (opening on the second IMU
+                                   sample in a row outside it): the differentiated gyro noise
+                                   (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -129,7 +130,8 @@ S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
 S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
-N_STATE = S_ACC_GATE + 1
+S_ACC_OUT = S_ACC_GATE + 1  # 1.0 if the previous IMU rate was outside the rest gate's lower edge (J_c gate)
+N_STATE = S_ACC_OUT + 1
 
 
 @njit(cache=True)
@@ -158,6 +160,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
+        st[S_ACC_OUT] = st[S_FF_OUT]
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -211,8 +214,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     if ff_motor:
         tau_raw += tau_fc
     if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
-        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise)
-            st[S_ACC_GATE] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise),
+            # opening, as the feedforward's, only on the second sample in a row outside its lower edge:
+            # one gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample
+            g_acc = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+            st[S_ACC_GATE] = g_acc if st[S_ACC_OUT] != 0.0 else 0.0
+            st[S_ACC_OUT] = 1.0 if g_acc > 0.0 else 0.0
         if cfg[C_ACC_LINK] != 0.0:
             st[S_ACC_N] += 1.0
             if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
