@@ -25,12 +25,14 @@ Control law (per cycle, ``k``)::
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
-    both: tau_m += J_c A[dq_m]     inertia compensation (feedback.inertia_comp_kg_m2): A the
-                                   motor velocity's backward difference / dt through a 1st-order
-                                   low-pass (feedback.acceleration_cutoff_hz); the loop then
+    both: tau_m += J_c A[g a]      inertia compensation (feedback.inertia_comp_kg_m2): a the
+                                   link's (IMU rate, per sample) or the motor's velocity's backward
+                                   difference / dt, A a 1st-order low-pass
+                                   (feedback.acceleration_cutoff_hz); the loop then
                                    sees J_m - J_c (controller/law/loop_model.py checks it);
-                                   x the feedforward's rest gate on dq_out (opening on the second IMU
-                                   sample in a row outside it): the differentiated gyro noise
+                                   g the feedforward's rest gate on dq_out (opening on the second IMU
+                                   sample in a row outside it), on the filter's input so that the
+                                   gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
@@ -229,7 +231,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         else:
             st[S_ACC_RAW] = (r.dq_m_rad_s - st[S_V_PREV]) / cfg[C_DT]
             st[S_V_PREV] = r.dq_m_rad_s
-        tau_raw += st[S_ACC_GATE] * cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_RAW])
+        # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
+        # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
+        tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
