@@ -53,7 +53,9 @@ Signal conditioning, and why:
   10 mrad/s, 5 sigma of the gyro noise: a sample of noise reaches 4 sigma once in ~16000),
   1 above the band, linear in between, so eq (21) is unchanged once the joint moves and
   motion onset gets the full friction as soon as the rate leaves the noise.
-  Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
+  Evaluated only on a new IMU sample (400 Hz) and held, as in the paper, then slew-limited to
+  ``feedforward.max_rate_Nm_s`` (200 Nm/s: a 3.4 Nm flip at a fast reversal takes 17 ms
+  instead of one cycle, which hit the command's 2 Nm/cycle clamp in HIL with a hand).
 * pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
   friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
 """
@@ -109,7 +111,8 @@ C_QB_ALPHA = 41         # pole of the complementary filter of q_out (0 = off)
 C_JC = 42               # inertia compensation J_c [kg m^2] (0 = off)
 C_ACC_ALPHA = 43        # pole of the acceleration low-pass
 C_ACC_LINK = 44         # 1.0 = link acceleration from the IMU rate, 0.0 = motor from dq_m
-N_CFG = 45              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_FF_SLEW_STEP = 45     # largest change of the feedforward per cycle [Nm] (feedforward.max_rate_Nm_s x dt)
+N_CFG = 46              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -133,7 +136,8 @@ S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samp
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
 S_ACC_OUT = S_ACC_GATE + 1  # 1.0 if the previous IMU rate was outside the rest gate's lower edge (J_c gate)
-N_STATE = S_ACC_OUT + 1
+S_FC_OUT = S_ACC_OUT + 1   # the feedforward after its slew limit [Nm]
+N_STATE = S_FC_OUT + 1
 
 
 @njit(cache=True)
@@ -163,6 +167,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
         st[S_ACC_OUT] = st[S_FF_OUT]
+        st[S_FC_OUT] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -187,7 +192,11 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
             fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
         st[S_FC_HELD] = cfg[C_FF_GAIN] * fc
-    tau_fc = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
+    # slew limit: at a fast reversal eq (21) flips 2 x 1.7 Nm within one IMU sample (tanh width
+    # 1/alpha = 20 mrad/s), a step past the command's rate clamp; spread over max_rate_Nm_s instead
+    fc_target = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
+    tau_fc = st[S_FC_OUT] + min(max(fc_target - st[S_FC_OUT], -cfg[C_FF_SLEW_STEP]), cfg[C_FF_SLEW_STEP])
+    st[S_FC_OUT] = tau_fc
     ff_motor = cfg[C_FF_MOTOR] != 0.0
     tau_out_des = tau_g + r.tau_out_ref_Nm
     if not ff_motor:
