@@ -185,3 +185,20 @@ def test_term_breakdown_reports_each_variants_margins():
         res["no_inertia_comp"]["mean_abs_tau_h_Nm"] - res["shipped"]["mean_abs_tau_h_Nm"])
     text = format_terms(out)
     assert "MISSED" in text and "paper_pid_gravity_only" in text
+
+
+def test_terms_cli_prints_strict_json(capsys, monkeypatch):
+    """``--terms --json``: one strict JSON object (the gravity-only loop has no crossover: PM inf -> null)."""
+    import json
+
+    from capstan.tools.experiments import interaction_terms
+    from capstan.tools.cli import main
+    pick = tuple(v for v in interaction_terms.TERM_VARIANTS if v.name in ("shipped", "gravity_only"))
+    monkeypatch.setattr(interaction_terms, "TERM_VARIANTS", pick)
+    real = interaction_terms.run_terms
+    monkeypatch.setattr(interaction_terms, "run_terms",
+                        lambda d, delay, seed=0, progress=None: real(0.6, delay, ("fast_low_bending",), seed, pick))
+    assert main(["experiment", "interaction", "--terms", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert doc["variants"]["gravity_only"]["worst_phase_margin_deg"] is None
+    assert doc["delay_cycles"] == 2 and set(doc["results"]["fast_low_bending"]) == {"shipped", "gravity_only"}

@@ -71,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "terms", False):
         from capstan.tools.experiments.interaction_terms import format_terms, run_terms
         terms = run_terms(duration, delay, seed=args.seed, progress=progress)
-        if args.json:
-            json.dump(terms, sys.stdout, indent=2)
+        if args.json:     # strict JSON: a margin without a crossover (inf) or a stopped run (nan) -> null
+            from capstan.tools.experiments.loop import _finite_or_null
+            json.dump(_finite_or_null(terms), sys.stdout, indent=2, allow_nan=False)
             sys.stdout.write("\n")
         else:
             print(format_terms(terms))
