@@ -123,6 +123,7 @@ FRAG_FF = {"effects": [{"effect": "dwell_stiction", "code": 1, "depends_on": ["d
 def _tau_fc_sequence(ff_extra: dict, dq: np.ndarray, dt_s: float) -> np.ndarray:
     cc = copy.deepcopy(CFG["controller"])
     cc["feedforward"].update(ff_extra)
+    cc["feedforward"]["max_rate_Nm_s"] = 1e9     # no slew limit: the effect is compared sample by sample
     ctl = Controller(ControllerConfig.from_mapping(cc))
     rec = ctl.record[0]
     out = np.zeros(dq.shape[0])

@@ -70,7 +70,9 @@ def test_stribeck_shape_eq21():
 def _ctl(**ff):
     m = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
          "filters": {"q_out_blend_hz": 0.0},      # the raw angle: these cycles hold q with a rate
-         "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0}}, **ff)}
+         # no slew limit: these tests check eq (21) cycle by cycle (the limit has its own test)
+         "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0},
+                              "max_rate_Nm_s": 1e9}, **ff)}
     return Controller(ControllerConfig.from_mapping(m))
 
 
@@ -172,7 +174,8 @@ def test_rest_gate_is_continuous_and_leaves_moving_friction_unchanged():
     """The gate rises continuously from 0 at 0.8 x band to 1 at the band; from there on the
     feedforward is eq (21) itself (motion onset is not delayed), e.g. at 0.1 rad/s."""
     gated = _ctl()
-    plain_cfg = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0},
+    plain_cfg = {"feedforward": {"routing": {"length_m": 1.379, "theta_rad": 5.0}, "dead_band_rad_s": 0.0,
+                                 "max_rate_Nm_s": 1e9},
                  "stability": {"gyro_noise_rad_s": 0.0}}
     plain = Controller(ControllerConfig.from_mapping(plain_cfg))
     band = gated.cfg.feedforward.dead_band_rad_s
@@ -201,3 +204,24 @@ def test_one_noise_sample_outside_the_gate_does_not_kick_the_command():
     seq = [0.0, 0.0, 1.5 * band, 0.0, 0.0, 1.5 * band, 1.5 * band]
     fc = [float(_cycle(ctl, k, T0=150.0, dq=v)["tau_fc_Nm"]) for k, v in enumerate(seq)]
     assert fc[:6] == [0.0] * 6 and fc[6] > 0.0
+
+
+def test_feedforward_flip_at_a_fast_reversal_is_slew_limited():
+    """At a fast reversal eq (21) flips sign within one IMU sample (2 x 2.4 Nm here); the step
+    spreads it at feedforward.max_rate_Nm_s (200 Nm/s: 0.2 Nm per cycle), so the command never
+    meets its 2 Nm/cycle rate clamp, and arrives at the flipped value after |flip| / 0.2 cycles."""
+    free = _ctl(max_rate_Nm_s=1e9)
+    lim = _ctl(max_rate_Nm_s=200.0)
+    for ctl in (free, lim):
+        for k in range(40):
+            _cycle(ctl, k, dq=0.5)
+    a = float(free.record[0]["tau_fc_Nm"])
+    assert float(lim.record[0]["tau_fc_Nm"]) == pytest.approx(a)      # settled before the reversal
+    fc = [float(_cycle(lim, 40 + k, dq=-0.5)["tau_fc_Nm"]) for k in range(60)]
+    steps = np.abs(np.diff([a] + fc))
+    assert np.max(steps) <= 0.2 + 1e-12
+    n = int(math.ceil(2.0 * a / 0.2))
+    assert fc[n - 2] > -a and fc[n] == pytest.approx(-a)
+    assert float(_cycle(free, 40, dq=-0.5)["tau_fc_Nm"]) == pytest.approx(-a)   # eq (21) itself flips at once
+    with pytest.raises(ConfigError, match="max_rate_Nm_s"):
+        _ctl(max_rate_Nm_s=0.0)

@@ -108,3 +108,97 @@ def test_experiment_says_which_loop_it_ran():
     assert {"shipped_gravity_only", "shipped_ff", "ldo_ff"} <= set(out["results"]["fast_low_bending"])
     assert "lock-step" in run_experiment(0.6, placements=("reference",), conditions=("fast_low_bending",),
                                          delay_cycles=0)["loop"]
+
+
+@pytest.fixture(scope="module")
+def fast_delayed():
+    """The shipped loop on the fast condition with the daemon's delay: friction feedforward
+    and inertia compensation on and off (4 runs)."""
+    cond = CONDITIONS["fast_low_bending"]
+    no_jc = {"feedback": {"inertia_comp_kg_m2": 0.0}}
+    runs = {"shipped_ff": (True, None), "shipped_gravity_only": (False, no_jc),
+            "ff_only": (True, no_jc), "jc_only": (False, None)}
+    return {k: run_interaction(cond, controller_mapping(cond, "shipped", ff, extra=ex), DURATION_S, delay_cycles=2)
+            for k, (ff, ex) in runs.items()}
+
+
+def test_shipped_loop_is_compared_with_its_own_uncompensated_run(fast_delayed):
+    """The uncompensated reference of the shipped controllers is the same delay-robust loop with
+    gravity only (no friction feedforward, no inertia compensation), not the paper's kp-5 PID
+    whose loop hides the motor inertia but misses the margins with the delay."""
+    from capstan.controller.law.config import ControllerConfig
+    from capstan.controller.law.stability import analyse
+    from capstan.tools.commands.experiment import _ratios
+    from capstan.tools.experiments.interaction import BASELINE, CONTROLLER_EXTRA
+
+    cond = CONDITIONS["fast_low_bending"]
+    base = ControllerConfig.from_mapping(controller_mapping(cond, "shipped", False,
+                                                            extra=CONTROLLER_EXTRA["shipped_gravity_only"]))
+    assert base.feedback.inertia_comp_kg_m2 == 0.0 and not base.feedforward.enabled and analyse(base).ok
+    assert not analyse(ControllerConfig.from_mapping(controller_mapping(cond, "pid", False))).ok
+    assert BASELINE["shipped_ff"] == "shipped_gravity_only" and BASELINE["ldo_ff"] == "pid_gravity_only"
+    r = fast_delayed
+    assert r["shipped_ff"]["mean_abs_tau_h_Nm"] < 0.8 * r["shipped_gravity_only"]["mean_abs_tau_h_Nm"]
+    ratios = _ratios({"c": {"pid_gravity_only": {"mean_abs_tau_h_Nm": 1.0},
+                            "shipped_gravity_only": r["shipped_gravity_only"], "shipped_ff": r["shipped_ff"]}})["c"]
+    assert ratios["shipped_ff"] == pytest.approx(r["shipped_gravity_only"]["mean_abs_tau_h_Nm"]
+                                                 / r["shipped_ff"]["mean_abs_tau_h_Nm"])
+
+
+def test_fast_motion_is_inertia_dominated_so_friction_compensation_trades_accel_for_decel(fast_delayed):
+    """Fast strokes (peak 3.9 rad/s^2): the felt inertia torque exceeds the friction, so the
+    friction (opposing the motion) helps the hand brake the motor while slowing down. Removing it
+    lowers |tau_h| while the stroke speeds up and raises it by a similar amount while it slows
+    down; the inertia compensation lowers both. Friction torque of the condition:
+    mu theta T0_eq r_out = 0.052 * 2 * 2 * 180 * exp(-0.052) * 0.04 = 1.42 Nm."""
+    tau_fc = 0.052 * 2.0 * 2.0 * 180.0 * math.exp(-0.052 * 2.0 / 2.0) * 0.04
+    off, ff, jc = (fast_delayed[k] for k in ("shipped_gravity_only", "ff_only", "jc_only"))
+    d_acc = ff["mean_abs_tau_h_accel_Nm"] - off["mean_abs_tau_h_accel_Nm"]
+    d_dec = ff["mean_abs_tau_h_decel_Nm"] - off["mean_abs_tau_h_decel_Nm"]
+    assert -1.2 * tau_fc < d_acc < -0.3 * tau_fc
+    assert 0.3 * tau_fc < d_dec < 1.2 * tau_fc
+    for phase in ("accel", "decel"):
+        assert jc[f"mean_abs_tau_h_{phase}_Nm"] < off[f"mean_abs_tau_h_{phase}_Nm"]
+
+
+def test_phase_means_split_the_reference_profile():
+    import numpy as np
+
+    from capstan.tools.experiments.interaction import phase_means
+    h = HumanModel(move_s=1.0, rest_s=0.5)
+    t = np.arange(0.0, 3.0, 1e-3)
+    dq = np.array([h.reference(x)[1] for x in t])
+    tau = np.where(dq == 0.0, 1.0, 0.0) + np.where(np.gradient(np.abs(dq)) > 0, 2.0, 3.0) * (dq != 0.0)
+    m = phase_means(tau, dq)
+    assert (m["mean_abs_tau_h_rest_Nm"], m["mean_abs_tau_h_accel_Nm"], m["mean_abs_tau_h_decel_Nm"]) == (1.0, 2.0, 3.0)
+    assert math.isnan(phase_means(np.ones(5), np.zeros(5))["mean_abs_tau_h_accel_Nm"])
+
+
+def test_term_breakdown_reports_each_variants_margins():
+    from capstan.tools.experiments.interaction_terms import TERM_VARIANTS, format_terms, run_terms
+    pick = tuple(v for v in TERM_VARIANTS if v.name in ("shipped", "no_inertia_comp", "paper_pid_gravity_only"))
+    out = run_terms(1.0, 2, conditions=("fast_low_bending",), variants=pick)
+    assert out["variants"]["shipped"]["margins_ok"] and not out["variants"]["paper_pid_gravity_only"]["margins_ok"]
+    res = out["results"]["fast_low_bending"]
+    assert res["shipped"]["delta_vs_shipped_Nm"] == 0.0
+    assert res["no_inertia_comp"]["delta_vs_shipped_Nm"] == pytest.approx(
+        res["no_inertia_comp"]["mean_abs_tau_h_Nm"] - res["shipped"]["mean_abs_tau_h_Nm"])
+    text = format_terms(out)
+    assert "MISSED" in text and "paper_pid_gravity_only" in text
+
+
+def test_terms_cli_prints_strict_json(capsys, monkeypatch):
+    """``--terms --json``: one strict JSON object (the gravity-only loop has no crossover: PM inf -> null)."""
+    import json
+
+    from capstan.tools.experiments import interaction_terms
+    from capstan.tools.cli import main
+    pick = tuple(v for v in interaction_terms.TERM_VARIANTS if v.name in ("shipped", "gravity_only"))
+    monkeypatch.setattr(interaction_terms, "TERM_VARIANTS", pick)
+    real = interaction_terms.run_terms
+    monkeypatch.setattr(interaction_terms, "run_terms",
+                        lambda d, delay, seed=0, progress=None: real(0.6, delay, ("fast_low_bending",), seed, pick))
+    assert main(["experiment", "interaction", "--terms", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert doc["variants"]["gravity_only"]["worst_phase_margin_deg"] is None
+    assert doc["delay_cycles"] == 2 and set(doc["results"]["fast_low_bending"]) == {"shipped", "gravity_only"}

@@ -240,6 +240,7 @@ def _run_step_physical(cfg: ControllerConfig, p: PlantPoint, delay: int, n: int,
         if k >= next_imu:
             r["imu_new"] = 1
             r["dq_out_rad_s"] = x[3] if p.slip else 0.0
+            r["q_out_rad"] = x[2] if p.slip else 0.0
             next_imu += imu_every
         fifo.append(ctl.step())
         x = a @ x + b * fifo.pop(0)
@@ -279,13 +280,15 @@ def test_inertia_compensation_poles_agree_with_the_step(fb, p, grows):
 
 
 def test_inertia_compensation_margins_and_its_limit():
-    """J_c lowers the inertia the hand feels but eats margin: 0.2 kg m^2 from the link's
-    acceleration meets PM >= 45 deg, GM >= 6 dB over the grid, 0.3 does not (the link's free
-    mode in slip), and an amount at or above the lightest joint inertia is refused by name."""
-    ok = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 5.0}})
-    assert analyse(ok).ok
-    bad = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": 0.3, "acceleration_cutoff_hz": 5.0}})
-    assert not analyse(bad).ok
+    """J_c lowers the inertia the hand feels but eats margin: 0.3 kg m^2 from the link's
+    acceleration meets PM >= 45 deg, GM >= 6 dB over the grid with the gravity model on, 0.34
+    does not; without the gravity model (the link's full pendulum stiffness in slip) 0.2 does,
+    0.3 does not; an amount at or above the lightest joint inertia is refused by name."""
+    for jc, gravity, good in ((0.3, True, True), (0.34, True, False), (0.2, False, True), (0.3, False, False)):
+        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0},
+                                             "gravity": {"enabled": gravity}})
+        assert analyse(cfg).ok == good, (jc, gravity)
+    ok = cfg
     j_min = 0.73 * (1 - ok.stability.inertia_tolerance) + ok.stability.link_inertia_kg_m2
     with pytest.raises(ConfigError, match="inertia_comp_kg_m2"):
         ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": j_min}})
@@ -327,6 +330,38 @@ def test_inertia_compensation_is_off_at_rest():
     assert u == pytest.approx(0.2 * 2.0, rel=1e-3)
 
 
+def test_one_gyro_noise_sample_beyond_the_rest_band_does_not_kick_the_command():
+    """A single IMU sample beyond the rest gate's lower edge (noise past 4 sigma, about one in
+    16000 samples; seen in a HIL log as a 3-cycle 0.04 Nm blip at J_c 0.3) does not open the
+    inertia compensation: the command equals the one without J_c. A joint that keeps moving
+    (two samples in a row and more outside) gets it, and smoothly: the gate acts before the
+    acceleration's low-pass, so the command does not step when it opens or closes."""
+    def run(jc: float, rate) -> np.ndarray:
+        ctl = Controller(ControllerConfig.from_mapping(_quiet({"feedback": {"inertia_comp_kg_m2": jc}})))
+        r = ctl.record[0]
+        out = []
+        for k in range(600):
+            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+            r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+            r["dq_out_rad_s"] = rate(k)                 # band 0.01: lower edge at 0.008 rad/s
+            out.append(ctl.step())
+        return np.array(out)
+
+    def spike(k: int) -> float:
+        return 0.009 if 200 <= k < 203 else 0.0
+
+    def stroke(k: int) -> float:                       # 2 rad/s^2 up for 0.1 s, then down to rest
+        t = (k - 200) * 1e-3
+        return 0.0 if k < 200 or t > 0.2 else 2.0 * min(t, 0.2 - t)
+    assert np.array_equal(run(0.3, spike), run(0.0, spike))
+    u = run(0.3, stroke) - run(0.0, stroke)
+    assert np.max(u) > 0.3 * 0.3 * 2.0                 # J_c x a reaches the command while moving
+    # the gate closes at 8 mrad/s while the joint still slows at 2 rad/s^2: a gate on the output would
+    # drop J_c x a (0.57 Nm) in one cycle; on the input the low-pass (5 Hz: 3 % per cycle) lets it decay
+    assert np.max(np.abs(np.diff(u))) < 0.1 * np.max(np.abs(u))
+
+
 def test_acceleration_filter_is_the_step():
     """A(z) of the analysis reproduces the compiled step's response to a motor-velocity pulse
     (motor source, rest gate open) to rounding: u = J_c A(z) dq_m."""
@@ -349,3 +384,33 @@ def test_acceleration_filter_is_the_step():
         u[k] = ctl.step()
     a = acceleration_filter(cfg)
     assert np.max(np.abs(u - 0.2 * signal.lfilter(a[0], a[1], v))) < 1e-9 * np.max(np.abs(u))
+
+
+@pytest.mark.parametrize("gravity_model", [True, False])
+def test_slip_points_keep_the_gravity_models_residual_as_the_step_does(gravity_model):
+    """In slip the step's gravity model (m_g_l sin q_out, a positive feedback of the link angle)
+    cancels the link's gravity stiffness; the analysis keeps only the residual
+    (``stability.gravity_model_error``). Against the compiled step closed on the full link
+    (gravity stiffness 3.78 Nm/rad) with a gravity model 25 % short: J_c 0.6 decays as the
+    residual point's poles say, and grows as the full-stiffness point says when the gravity
+    model is off. The loop's dominant pole sets the rate in both (within x3 per window)."""
+    from capstan.controller.law.stability import plant_points, slip_link_stiffness_Nm_rad
+    m = _quiet({"feedback": {"inertia_comp_kg_m2": 0.6, "acceleration_cutoff_hz": 5.0, "ki_1_s": 0.0}})
+    m["gravity"] = {"enabled": gravity_model, "m_g_l_Nm": 3.78 * 0.75}
+    m["feedforward"]["dead_band_rad_s"] = 0.0
+    m["stability"] = {"gyro_noise_rad_s": 0.0, "gravity_model_error": 0.25, "link_stiffness_Nm_rad": 3.78}
+    cfg = ControllerConfig.from_mapping(m)
+    k_seen = slip_link_stiffness_Nm_rad(cfg, cfg.stability)
+    assert k_seen == pytest.approx(0.945 if gravity_model else 3.78)
+    assert all(p.link_stiffness_Nm_rad == k_seen for p in plant_points(cfg, cfg.stability) if p.slip)
+    real = PlantPoint(200.0, 0.51, 0.5, slip=True, link_stiffness_Nm_rad=3.78)
+    seen = PlantPoint(200.0, 0.51, 0.5, slip=True, link_stiffness_Nm_rad=k_seen)
+    poles = closed_loop_poles(cfg, seen, 2)
+    osc = poles[np.abs(np.angle(poles)) > 2 * math.pi * 0.1 * cfg.dt_s]      # the link's mode, not the drift
+    rho = float(np.max(np.abs(osc)))
+    assert (rho > 1.0) == (not gravity_model)
+    n_win = 2000
+    v = _run_step_physical(cfg, real, 2, 500 + 3 * n_win)
+    a_, b_ = (np.max(np.abs(v[500 + i * n_win:500 + (i + 1) * n_win])) for i in (1, 2))
+    assert 1.0 / 3.0 < (b_ / a_) / rho ** n_win < 3.0
+    assert (b_ > a_) == (not gravity_model)

@@ -21,7 +21,7 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
-        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
+        inertia_comp_kg_m2: 0.3      # + J_c x acceleration on the command (0 = off), gated at rest
         acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
         acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
       filters:
@@ -50,6 +50,7 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         dead_band_rad_s: 0.01        # rest gate: feedforward x 0 for |dq_out| <= 0.8 band, x 1 above the band
                                      # (linear between), so its direction cannot follow gyro noise at rest
                                      # (5 sigma of 2 mrad/s; >= 2 x stability.gyro_noise_rad_s)
+        max_rate_Nm_s: 200.0         # slew limit of the feedforward: a flip at a reversal over ~17 ms, not 1 cycle
         effects: []                  # learned effects added to the friction torque: the fragment
                                      # of `capstan close` (format models/closure/effects_runtime.py,
                                      # evaluation controller/law/learned_effects.py)
@@ -156,6 +157,7 @@ class FeedforwardConfig:
     alpha_s_rad: float = 50.0
     b_vis_Nms_rad: float = 0.0
     dead_band_rad_s: float = 0.01
+    max_rate_Nm_s: float = 200.0     # slew limit of the feedforward [Nm/s] (step.py)
     effects: tuple[dict[str, Any], ...] = ()
     effects_shape: tuple[float, float, float, float] = (50.0, 0.05, 1.2, 0.005)
 
@@ -294,7 +296,7 @@ class ControllerConfig:
                 "eq25_reading": ff.eq25_reading.name.lower(),
                 "zeta_s": ff.zeta_s, "zeta_c": ff.zeta_c, "eta_s_rad_s": ff.eta_s_rad_s,
                 "alpha_s_rad": ff.alpha_s_rad, "b_vis_Nms_rad": ff.b_vis_Nms_rad,
-                "dead_band_rad_s": ff.dead_band_rad_s,
+                "dead_band_rad_s": ff.dead_band_rad_s, "max_rate_Nm_s": ff.max_rate_Nm_s,
                 "effects": [dict(e) for e in ff.effects],
                 "effects_shape": dict(zip(_EFFECTS_SHAPE_KEYS, ff.effects_shape)),
             },
@@ -317,7 +319,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
 
     reject_unknown(c, {"enabled", "placement", "gain", "mu", "routing", "pretension",
                        "T0_fixed_N", "eq25_reading", "zeta_s", "zeta_c", "eta_s_rad_s", "alpha_s_rad", "b_vis_Nms_rad",
-                       "dead_band_rad_s", "effects", "effects_shape"}, p)
+                       "dead_band_rad_s", "max_rate_Nm_s", "effects", "effects_shape"}, p)
     d = FeedforwardConfig()
     if "routing" in c:
         routing = Routing.from_mapping(section(c, "routing", p), f"{p}.routing")
@@ -354,6 +356,7 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         eta_s_rad_s=eta_s, alpha_s_rad=alpha_s,
         b_vis_Nms_rad=get_float(c, "b_vis_Nms_rad", p, d.b_vis_Nms_rad, min_value=0.0),
         dead_band_rad_s=get_float(c, "dead_band_rad_s", p, d.dead_band_rad_s, min_value=0.0, max_value=1.0),
+        max_rate_Nm_s=get_float(c, "max_rate_Nm_s", p, d.max_rate_Nm_s, min_value=0.0, min_exclusive=True),
         effects=effects, effects_shape=shape,
     )
 

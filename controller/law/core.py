@@ -80,6 +80,7 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_LC_TIMEOUT] = sf.loadcell_timeout_s
     c[_s.C_MOTOR_TIMEOUT] = sf.motor_timeout_s
     c[_s.C_FF_DEAD_BAND] = ff.dead_band_rad_s
+    c[_s.C_FF_SLEW_STEP] = ff.max_rate_Nm_s * dt
     c[_s.C_QB_ALPHA] = lowpass_alpha(cfg.q_out_blend_hz, dt)
     return np.concatenate((c, pack_block(ff.effects, *ff.effects_shape)))
 

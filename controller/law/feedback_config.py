@@ -31,7 +31,7 @@ class FeedbackGains:
     #: the link's (IMU rate) or the motor's (drive velocity) acceleration at the motor side
     #: [rad/s^2], differentiated and low-passed at ``acceleration_cutoff_hz`` [Hz], off at rest
     #: (the feedforward's rest band); the hand feels ``J_m - inertia_comp_kg_m2``
-    inertia_comp_kg_m2: float = 0.2
+    inertia_comp_kg_m2: float = 0.3
     acceleration_cutoff_hz: float = 5.0
     acceleration_source: AccelerationSource = AccelerationSource.LINK
 

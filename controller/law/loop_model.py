@@ -275,7 +275,9 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     d = int(delay_cycles)
     # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay,
     # motor acceleration filter
-    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 0 if ldo else 1, d, Acc.n]
+    # (with ki = 0 the step's integral stays 0: a constant, not a mode of the loop, so no state)
+    integral = not ldo and fb.ki_1_s != 0.0
+    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -293,8 +295,8 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
             u = -(fb.kp * tf_ + dd + qp) + q
         else:
             out[4], out[5], out[6] = xs[4], xs[5], xs[6]
-            integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_
-            out[7] = np.array([integ])
+            integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_ if integral else 0.0
+            out[7] = np.array([integ]) if integral else xs[7]
             u = -(fb.kp * tf_ + dd) + integ
         v = float(xs[0][v_index]) if v_index >= 0 else 0.0
         acc, out[9] = Acc.step(xs[9], v)

@@ -151,7 +151,8 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     dom_abs, dom_hz = float(abs(poles[i_dom])), float(abs(np.angle(poles[i_dom])) / (2.0 * math.pi * dt))
     f = np.geomspace(0.05, 0.5 / dt * 0.9999, 12000)
     C, L = loop_response(cfg, p, st.io_delay_cycles, f)
-    mag_db = 20.0 * np.log10(np.abs(L))
+    with np.errstate(divide="ignore"):     # L = 0 (no feedback at all): -inf dB, no crossing
+        mag_db = 20.0 * np.log10(np.abs(L))
     ph = np.unwrap(np.angle(L))
     pm, f_pm = math.inf, math.nan
     for i in _crossings(mag_db):
@@ -200,13 +201,32 @@ def plant_points(cfg: ControllerConfig, st: StabilitySettings) -> list[PlantPoin
     k_lo, k_hi = st.stiffness_range_Nm_rad
     jm = cfg.plant.motor_inertia_kg_m2
     f = st.stick_stiffness_factor
+    k_link = slip_link_stiffness_Nm_rad(cfg, st)
     out = []
     for mode, factor in zip(MODES, (1.0, math.sqrt(f), f, 1.0)):
         for k in (k_lo, 0.5 * (k_lo + k_hi), k_hi):
             for j in (jm * (1.0 - st.inertia_tolerance), jm, jm * (1.0 + st.inertia_tolerance)):
                 out.append(PlantPoint(k * factor, j, cfg.plant.motor_damping_Nms_rad, mode == "slip",
-                                      st.link_inertia_kg_m2, st.link_damping_Nms_rad, st.link_stiffness_Nm_rad))
+                                      st.link_inertia_kg_m2, st.link_damping_Nms_rad, k_link))
     return out
+
+
+def slip_link_stiffness_Nm_rad(cfg: ControllerConfig, st: StabilitySettings) -> float:
+    """The link's stiffness the loop sees in slip [Nm/rad]: its gravity stiffness
+    ``link_stiffness_Nm_rad`` (m g l, hanging) less what the gravity model cancels.
+
+    The step adds ``m_g_l sin(q_out)`` to the reference: linearised, a positive feedback of the
+    link angle that cancels the link's gravity stiffness, with ~3.5 ms of lag (IMU hold, I/O
+    delay) that only adds ``m_g_l x 3.5 ms`` of damping. The slip points therefore keep the
+    residual: ``max(k_link - m_g_l, gravity_model_error x k_link)`` with the gravity model on
+    (the configured m g l may be off by ``gravity_model_error``; a model that over-compensates
+    makes the hanging link drift, a static matter no loop gain changes), ``k_link`` with it off.
+    tests/test_torque_loop.py checks this against the compiled step with its gravity path closed
+    on the full link stiffness."""
+    k_link = st.link_stiffness_Nm_rad
+    if not cfg.gravity_enabled:
+        return k_link
+    return max(k_link - cfg.m_g_l_Nm, st.gravity_model_error * k_link)
 
 
 def analyse(cfg: ControllerConfig) -> StabilityReport:

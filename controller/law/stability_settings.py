@@ -26,6 +26,10 @@ class StabilitySettings:
     min_gain_margin_dB: float = 6.0
     tension_noise_N: float = 0.3
     gyro_noise_rad_s: float = 0.002
+    #: how far the gravity model's m g l may be off the link's [fraction]: in slip the daemon's
+    #: gravity model (a positive feedback of the link angle) cancels the link's gravity stiffness
+    #: ``link_stiffness_Nm_rad`` up to this residual, which is what the slip points keep
+    gravity_model_error: float = 0.25
 
 
 def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
@@ -55,4 +59,4 @@ def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
         get_float(c, "stick_stiffness_factor", p, d.stick_stiffness_factor, min_value=1.0, max_value=1000.0),
         get_float(c, "min_phase_margin_deg", p, d.min_phase_margin_deg, min_value=0.0, max_value=90.0),
         get_float(c, "min_gain_margin_dB", p, d.min_gain_margin_dB, min_value=0.0, max_value=40.0),
-        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0))
+        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0), pos("gravity_model_error", 1.0))

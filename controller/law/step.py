@@ -25,12 +25,15 @@ Control law (per cycle, ``k``)::
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
-    both: tau_m += J_c A[dq_m]     inertia compensation (feedback.inertia_comp_kg_m2): A the
-                                   motor velocity's backward difference / dt through a 1st-order
-                                   low-pass (feedback.acceleration_cutoff_hz); the loop then
+    both: tau_m += J_c A[g a]      inertia compensation (feedback.inertia_comp_kg_m2): a the
+                                   link's (IMU rate, per sample) or the motor's velocity's backward
+                                   difference / dt, A a 1st-order low-pass
+                                   (feedback.acceleration_cutoff_hz); the loop then
                                    sees J_m - J_c (controller/law/loop_model.py checks it);
-                                   x the feedforward's rest gate on dq_out: the differentiated
-                                   gyro noise (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
+                                   g the feedforward's rest gate on dq_out (opening on the second IMU
+                                   sample in a row outside it), on the filter's input so that the
+                                   gate does not step the command: the differentiated gyro noise
+                                   (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -50,7 +53,9 @@ Signal conditioning, and why:
   10 mrad/s, 5 sigma of the gyro noise: a sample of noise reaches 4 sigma once in ~16000),
   1 above the band, linear in between, so eq (21) is unchanged once the joint moves and
   motion onset gets the full friction as soon as the rate leaves the noise.
-  Evaluated only on a new IMU sample (400 Hz) and held, as in the paper.
+  Evaluated only on a new IMU sample (400 Hz) and held, as in the paper, then slew-limited to
+  ``feedforward.max_rate_Nm_s`` (200 Nm/s: a 3.4 Nm flip at a fast reversal takes 17 ms
+  instead of one cycle, which hit the command's 2 Nm/cycle clamp in HIL with a hand).
 * pretension ``T0``: the plain mean of the four tensions (noise / 2); it enters the
   friction magnitude linearly (0.3 N noise -> < 0.1 % of tau_fc).
 """
@@ -106,7 +111,8 @@ C_QB_ALPHA = 41         # pole of the complementary filter of q_out (0 = off)
 C_JC = 42               # inertia compensation J_c [kg m^2] (0 = off)
 C_ACC_ALPHA = 43        # pole of the acceleration low-pass
 C_ACC_LINK = 44         # 1.0 = link acceleration from the IMU rate, 0.0 = motor from dq_m
-N_CFG = 45              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_FF_SLEW_STEP = 45     # largest change of the feedforward per cycle [Nm] (feedforward.max_rate_Nm_s x dt)
+N_CFG = 46              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -129,7 +135,9 @@ S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
 S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
-N_STATE = S_ACC_GATE + 1
+S_ACC_OUT = S_ACC_GATE + 1  # 1.0 if the previous IMU rate was outside the rest gate's lower edge (J_c gate)
+S_FC_OUT = S_ACC_OUT + 1   # the feedforward after its slew limit [Nm]
+N_STATE = S_FC_OUT + 1
 
 
 @njit(cache=True)
@@ -158,6 +166,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
+        st[S_ACC_OUT] = st[S_FF_OUT]
+        st[S_FC_OUT] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -182,7 +192,11 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             load = cfg[C_R_RATIO] * (tau_g + r.tau_out_ref_Nm + fc)
             fc += learned_effects_Nm(cfg, N_CFG, st, S_FX, r.t_s, r.q_out_rad, r.dq_out_rad_s, load, t0_meas)
         st[S_FC_HELD] = cfg[C_FF_GAIN] * fc
-    tau_fc = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
+    # slew limit: at a fast reversal eq (21) flips 2 x 1.7 Nm within one IMU sample (tanh width
+    # 1/alpha = 20 mrad/s), a step past the command's rate clamp; spread over max_rate_Nm_s instead
+    fc_target = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
+    tau_fc = st[S_FC_OUT] + min(max(fc_target - st[S_FC_OUT], -cfg[C_FF_SLEW_STEP]), cfg[C_FF_SLEW_STEP])
+    st[S_FC_OUT] = tau_fc
     ff_motor = cfg[C_FF_MOTOR] != 0.0
     tau_out_des = tau_g + r.tau_out_ref_Nm
     if not ff_motor:
@@ -211,8 +225,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     if ff_motor:
         tau_raw += tau_fc
     if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
-        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise)
-            st[S_ACC_GATE] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise),
+            # opening, as the feedforward's, only on the second sample in a row outside its lower edge:
+            # one gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample
+            g_acc = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+            st[S_ACC_GATE] = g_acc if st[S_ACC_OUT] != 0.0 else 0.0
+            st[S_ACC_OUT] = 1.0 if g_acc > 0.0 else 0.0
         if cfg[C_ACC_LINK] != 0.0:
             st[S_ACC_N] += 1.0
             if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
@@ -222,7 +240,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         else:
             st[S_ACC_RAW] = (r.dq_m_rad_s - st[S_V_PREV]) / cfg[C_DT]
             st[S_V_PREV] = r.dq_m_rad_s
-        tau_raw += st[S_ACC_GATE] * cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_RAW])
+        # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
+        # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
+        tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])

@@ -2,6 +2,7 @@
 rig, and ``paper`` (reproduce the paper's figures; implemented in :mod:`capstan.tools.experiments.paper.experiment`).
 
     capstan experiment interaction [--json] [--quick] [--duration-s S] [--seed N] [--delay-cycles D | --lock-step]
+                                   [--terms]      # the shipped loop with one term off at a time
     capstan experiment loop [--config FILE] [--log HIL.mcap] [--json]   # margins with the I/O delay
     capstan experiment paper [...]            # options of tools.paper_experiment
 """
@@ -34,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--delay-cycles", type=int, default=None,
                    help="command delay of the loop [cycles] (default: controller.stability.io_delay_cycles, 2)")
     p.add_argument("--lock-step", action="store_true", help="the lock-step idealisation (no delay)")
+    p.add_argument("--terms", action="store_true",
+                   help="break the shipped loop's mean |tau_h| down by term (one switched off at a time)")
     lp = sub.add_parser("loop", help="torque-loop margins and noise gains with the I/O delay")
     from capstan.tools.experiments.loop import add_arguments as _loop_args
     _loop_args(lp)
@@ -64,8 +67,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         from capstan.controller.law.config import StabilitySettings
         delay = StabilitySettings().io_delay_cycles
-    out = run_experiment(duration, seed=args.seed, delay_cycles=delay,
-                         progress=None if args.json else (lambda m: log.info("%s", m)))
+    progress = None if args.json else (lambda m: log.info("%s", m))
+    if getattr(args, "terms", False):
+        from capstan.tools.experiments.interaction_terms import format_terms, run_terms
+        terms = run_terms(duration, delay, seed=args.seed, progress=progress)
+        if args.json:     # strict JSON: a margin without a crossover (inf) or a stopped run (nan) -> null
+            from capstan.tools.experiments.loop import _finite_or_null
+            json.dump(_finite_or_null(terms), sys.stdout, indent=2, allow_nan=False)
+            sys.stdout.write("\n")
+        else:
+            print(format_terms(terms))
+        return 0
+    out = run_experiment(duration, seed=args.seed, delay_cycles=delay, progress=progress)
     out["duration_s"] = duration
     out["ratios"] = _ratios(out["results"])
     out["paper_fig13_Nm"] = PAPER_FIG13_NM
@@ -78,12 +91,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _ratios(results: dict) -> dict:
-    """Uncompensated (PID, gravity only) mean |tau_h| over each controller's, per condition."""
+    """Uncompensated mean |tau_h| over each controller's, per condition. The uncompensated run is
+    the gravity-only controller of the same torque loop and gains (``interaction.BASELINE``):
+    the paper's PID for the paper's controllers, the shipped loop's for ``shipped_*``."""
+    from capstan.tools.experiments.interaction import BASELINE
     ratios = {}
     for cond, res in results.items():
-        base = res["pid_gravity_only"]["mean_abs_tau_h_Nm"]
-        ratios[cond] = {k: (base / v["mean_abs_tau_h_Nm"] if v["mean_abs_tau_h_Nm"] > 0 else float("nan"))
-                        for k, v in res.items()}
+        ratios[cond] = {}
+        for k, v in res.items():
+            base = res.get(BASELINE.get(k.split("@")[0], "pid_gravity_only"), {}).get("mean_abs_tau_h_Nm", float("nan"))
+            ratios[cond][k] = base / v["mean_abs_tau_h_Nm"] if v["mean_abs_tau_h_Nm"] > 0 else float("nan")
     return ratios
 
 
@@ -96,13 +113,15 @@ def _print_table(out: dict) -> None:
         print(f"\n{cond}: theta = {c['theta_rad']} rad, pretension = {c['pretension_N']} N, "
               f"human K = {h['stiffness_Nm_rad']} Nm/rad, B = {h['damping_Nms_rad']} Nms/rad, "
               f"stroke {2 * h['amplitude_rad']:.2f} rad in {h['move_s']} s, rests {h['rest_s']} s")
-        print(f"  {'controller':<26}{'mean|tau_h|':>12}{'ratio':>8}{'rms e_tau_in':>14}{'max|raw|':>10}  fault")
+        print(f"  {'controller':<26}{'mean|tau_h|':>12}{'ratio*':>8}{'rms e_tau_in':>14}{'max|raw|':>10}  fault")
         for key, m in res.items():
             if "error" in m:
                 print(f"  {key:<26}{'-':>12}  stopped: {m['error']}")
                 continue
             print(f"  {key:<26}{m['mean_abs_tau_h_Nm']:>12.3f}{out['ratios'][cond][key]:>8.2f}"
                   f"{m['rms_tau_in_err_Nm']:>14.3f}{m['max_abs_tau_m_raw_Nm']:>10.2f}  {'YES' if m['faulted'] else 'no'}")
+    print("\n* ratio: the gravity-only run of the same loop and gains over this one (paper controllers: "
+          "pid_gravity_only, lock-step gains; shipped_*: shipped_gravity_only, no inertia compensation)")
     print(f"\npaper Fig. 13(d): {PAPER_FIG13_NM['uncompensated']} Nm uncompensated vs "
           f"{', '.join(str(v) for v in PAPER_FIG13_NM['compensated'])} Nm compensated")
 

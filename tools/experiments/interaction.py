@@ -108,6 +108,17 @@ CONTROLLERS: dict[str, tuple[str, bool]] = {
     "shipped_ff": ("shipped", True),
 }
 
+#: per controller: the settings that make it what its name says. ``shipped_gravity_only`` is the
+#: uncompensated joint of the shipped (delay-robust) loop: gravity only, no friction feedforward
+#: and no inertia compensation, so ``shipped_*`` compare like for like (same loop, same delay)
+CONTROLLER_EXTRA: dict[str, dict[str, Any]] = {
+    "shipped_gravity_only": {"feedback": {"inertia_comp_kg_m2": 0.0}},
+}
+
+#: the uncompensated controller each controller is compared with (same torque loop and gains)
+BASELINE: dict[str, str] = {**{k: "pid_gravity_only" for k in PAPER_CONTROLLERS},
+                            "shipped_gravity_only": "shipped_gravity_only", "shipped_ff": "shipped_gravity_only"}
+
 #: the gains the paper-style controllers were tuned with in lock-step (no delay); with the
 #: daemon's 2-cycle I/O delay they miss the margins (`capstan experiment loop`)
 LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
@@ -200,29 +211,34 @@ class LockStep:
 
 def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
                     noise: SensorNoise | None = None, settle_s: float = 0.5,
-                    delay_cycles: int = 0) -> dict[str, float]:
+                    delay_cycles: int = 0, imu_rate_hz: float = 400.0) -> dict[str, float]:
     """Run one controller on one condition; return the metrics.
 
     :param delay_cycles: command delay of the loop (0: lock-step idealisation).
+    :param imu_rate_hz: the rig's IMU output rate [Hz] (the daemon's Xsens: 400 Hz).
 
     :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
-        ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage)
-        and ``faulted`` (1.0 if the safety stage latched; the run stops there).
+        ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage),
+        ``faulted`` (1.0 if the safety stage latched; the run stops there) and mean |tau_h| per
+        phase of the hand's reference (:func:`phase_means`): ``mean_abs_tau_h_accel_Nm``,
+        ``..._decel_Nm``, ``..._rest_Nm``.
     :raises ConfigError: on a bad controller mapping; ``OperatingRangeError`` on cable slack.
     """
     rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
-                       seed=seed)
+                       seed=seed, imu_rate_hz=imu_rate_hz)
     ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
     ls = LockStep(ctl, rig, delay_cycles)
     n = int(round(duration_s / 1e-3))
     tau_h = np.zeros(n)
     err = np.zeros(n)
     raw = np.zeros(n)
+    dq_ref = np.zeros(n)
     human = cond.human
     model = rig.model
     for k in range(n):
         th = human.torque_Nm(rig.t_s, model.q_out_rad, model.dq_out_rad_s)
         tau_h[k] = th
+        dq_ref[k] = human.reference(rig.t_s)[1]
         ls.cycle(th)
         err[k] = ctl.record[0]["err_Nm"]
         raw[k] = ctl.record[0]["tau_m_raw_Nm"]
@@ -237,7 +253,20 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
         "rms_tau_in_err_Nm": float(np.sqrt(np.mean(err[k0:] ** 2))),
         "max_abs_tau_m_raw_Nm": float(np.max(np.abs(raw))),
         "faulted": 1.0 if ctl.faulted else 0.0,
+        **phase_means(tau_h[k0:], dq_ref[k0:]),
     }
+
+
+def phase_means(tau_h_Nm: np.ndarray, dq_ref_rad_s: np.ndarray) -> dict[str, float]:
+    """Mean |tau_h| [Nm] while the hand's reference speeds up (``accel``), slows down
+    (``decel``) and rests (``rest``; dq_ref = 0). Friction opposes the motion in both moving
+    phases while the inertia torque changes sign, so a friction compensation lowers
+    ``accel`` and raises ``decel`` when the inertia torque exceeds the friction (NaN: no sample)."""
+    speed = np.abs(dq_ref_rad_s)
+    growing = np.gradient(speed) > 0.0
+    masks = {"accel": (speed > 0.0) & growing, "decel": (speed > 0.0) & ~growing, "rest": speed == 0.0}
+    return {f"mean_abs_tau_h_{k}_Nm": float(np.mean(np.abs(tau_h_Nm[m]))) if np.any(m) else math.nan
+            for k, m in masks.items()}
 
 
 def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference", "motor"),
@@ -260,8 +289,8 @@ def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference"
             for placement in (placements if ff and loop != "shipped" else ("reference",)):
                 key = name if not ff or placement == "reference" else f"{name}@{placement}"
                 try:
-                    res[key] = run_interaction(cond, controller_mapping(cond, loop, ff, placement), duration_s,
-                                               seed, delay_cycles=delay_cycles)
+                    mapping = controller_mapping(cond, loop, ff, placement, CONTROLLER_EXTRA.get(name))
+                    res[key] = run_interaction(cond, mapping, duration_s, seed, delay_cycles=delay_cycles)
                 except OperatingRangeError as exc:      # e.g. cable slack: a result, not a crash
                     res[key] = {"mean_abs_tau_h_Nm": math.nan, "error": str(exc), "faulted": 1.0}
                 if progress is not None:

@@ -26,7 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from capstan.controller.law.config import ControllerConfig
-from capstan.controller.law.stability import MODES, analyse
+from capstan.controller.law.stability import MODES, analyse, slip_link_stiffness_Nm_rad
 from capstan.models.common.config_tools import load_yaml
 from capstan.tools.offline.shipped import config_path
 
@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     sec = raw.get("controller", raw) if isinstance(raw, Mapping) else {}
     cfg = ControllerConfig.from_mapping(sec)
     rep = analyse(cfg)
-    out: dict[str, Any] = {"config": str(path), **rep.to_dict()}
+    k_slip = slip_link_stiffness_Nm_rad(cfg, cfg.stability)
+    out: dict[str, Any] = {"config": str(path), **rep.to_dict(), "slip_link_stiffness_Nm_rad": k_slip}
     if args.log:
         out["log_check"] = log_check(Path(args.log))
     if args.json:
@@ -117,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
           f"({cfg.feedback.acceleration_source.name.lower()}, {cfg.feedback.acceleration_cutoff_hz:g} Hz), "
           f"I/O delay {st.io_delay_cycles} cycles")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
-          f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}")
+          f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
+          f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
     print(f"{'mode':<21}{'K_c':>7}{'J_m':>6}{'stable':>7}{'GM dB':>8}{'@Hz':>7}{'PM deg':>8}{'@Hz':>7}"
           f"{'|S| dB':>8}{'res Hz':>8}{'lc->cmd':>9}{'gyro->cmd':>10}")
     for i, p in enumerate(rep.points):

@@ -1,0 +1,132 @@
+"""What each term of the shipped torque loop does to the interaction torque: the interaction
+experiment (:mod:`capstan.tools.experiments.interaction`) with one term switched off or one
+loop property changed at a time (``capstan experiment interaction --terms``).
+
+Every variant runs the shipped controller (config defaults, friction feedforward at the
+reference) on the same condition, seed and duration, so the differences are the term's
+share of mean |tau_h|. Each variant's loop is also checked with the loop analysis
+(:func:`capstan.controller.law.stability.analyse`): a variant that misses the margins is
+not a loop the daemon would start, whatever its mean |tau_h|.
+
+Variants (:data:`TERM_VARIANTS`):
+
+* ``shipped`` — feedforward + integral trim + inertia compensation, 2-cycle delay, IMU 400 Hz;
+* ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
+* ``narrow_rest_gate`` — the feedforward's rest band at its smallest accepted value (2 x the
+  gyro noise), i.e. the gate's onset delay almost removed;
+* ``no_delay`` — the command acts in the cycle it is computed (the lock-step idealisation);
+* ``imu_1khz`` — the IMU (gate, feedforward and differentiated acceleration) at 1 kHz;
+* ``gravity_only`` — no friction feedforward, no inertia compensation: the uncompensated joint
+  of the same loop (the like-for-like baseline);
+* ``paper_pid_gravity_only`` — the paper's gravity-only PID with its lock-step gains (kp 5): the
+  experiment's historical "uncompensated" row. Its torque loop hides the motor inertia, but it
+  misses the margins with the delay (it rings at the sheath-stick mode in HIL).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.stability import analyse
+from capstan.models.common.errors import OperatingRangeError
+from capstan.tools.experiments.interaction import CONDITIONS, controller_mapping, run_interaction
+
+
+@dataclass(frozen=True)
+class TermVariant:
+    """One variant of the shipped loop.
+
+    :ivar loop: ``shipped`` (config defaults) or a paper loop (``pid``/``ldo``, lock-step gains).
+    :ivar feedforward: friction feedforward on (at the reference).
+    :ivar extra: controller mapping merged over the condition's (sections merged key by key).
+    :ivar delay_cycles: command delay [cycles]; None: the experiment's.
+    :ivar imu_rate_hz: the rig's IMU rate [Hz].
+    """
+
+    name: str
+    description: str
+    loop: str = "shipped"
+    feedforward: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+    delay_cycles: int | None = None
+    imu_rate_hz: float = 400.0
+
+
+_NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
+
+TERM_VARIANTS: tuple[TermVariant, ...] = (
+    TermVariant("shipped", "feedforward + integral trim + inertia compensation"),
+    TermVariant("no_feedforward", "friction feedforward off", feedforward=False),
+    TermVariant("no_inertia_comp", "inertia compensation off", extra=_NO_JC),
+    TermVariant("no_integral_trim", "integral trim off (ki 0)", extra={"feedback": {"ki_1_s": 0.0}}),
+    TermVariant("narrow_rest_gate", "rest band 2 x gyro noise (0.004 rad/s)",
+                extra={"feedforward": {"dead_band_rad_s": 0.004}}),
+    TermVariant("no_delay", "command acts in its own cycle (lock-step)", delay_cycles=0),
+    TermVariant("imu_1khz", "IMU at 1 kHz instead of 400 Hz", imu_rate_hz=1000.0),
+    TermVariant("gravity_only", "uncompensated: no feedforward, no inertia compensation",
+                feedforward=False, extra=_NO_JC),
+    TermVariant("paper_pid_gravity_only", "paper's gravity-only PID, lock-step gains (kp 5)",
+                loop="pid", feedforward=False),
+)
+
+
+def run_terms(duration_s: float, delay_cycles: int, conditions: tuple[str, ...] = tuple(CONDITIONS),
+              seed: int = 0, variants: tuple[TermVariant, ...] = TERM_VARIANTS,
+              progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Every variant on every condition.
+
+    :param delay_cycles: the command delay of the variants that do not set their own [cycles].
+    :returns: ``{"variants": {name: {description, margins_ok, worst_phase_margin_deg,
+        worst_gain_margin_dB}}, "results": {condition: {name: metrics}}}``; the metrics are
+        :func:`run_interaction`'s plus ``delta_vs_shipped_Nm`` (mean |tau_h| minus the shipped one).
+    :raises ConfigError: if a variant's controller mapping is invalid.
+    """
+    out: dict[str, Any] = {"delay_cycles": int(delay_cycles), "duration_s": float(duration_s),
+                           "variants": {}, "results": {}}
+    for v in variants:
+        cfg = ControllerConfig.from_mapping(controller_mapping(CONDITIONS[conditions[0]], v.loop, v.feedforward,
+                                                               extra=v.extra))
+        rep = analyse(cfg)
+        out["variants"][v.name] = {"description": v.description, "margins_ok": rep.ok,
+                                   "worst_phase_margin_deg": rep.worst_phase_margin_deg,
+                                   "worst_gain_margin_dB": rep.worst_gain_margin_dB}
+    for cname in conditions:
+        cond = CONDITIONS[cname]
+        res: dict[str, Any] = {}
+        for v in variants:
+            d = delay_cycles if v.delay_cycles is None else v.delay_cycles
+            try:
+                res[v.name] = run_interaction(cond, controller_mapping(cond, v.loop, v.feedforward, extra=v.extra),
+                                              duration_s, seed, delay_cycles=d, imu_rate_hz=v.imu_rate_hz)
+            except OperatingRangeError as exc:
+                res[v.name] = {"mean_abs_tau_h_Nm": math.nan, "error": str(exc), "faulted": 1.0}
+            if progress is not None:
+                progress(f"{cname} {v.name}: mean |tau_h| = {res[v.name]['mean_abs_tau_h_Nm']:.3f} Nm")
+        ref = res[variants[0].name]["mean_abs_tau_h_Nm"]
+        for m in res.values():
+            m["delta_vs_shipped_Nm"] = m["mean_abs_tau_h_Nm"] - ref
+        out["results"][cname] = res
+    return out
+
+
+def format_terms(out: dict[str, Any]) -> str:
+    """The breakdown as a text table (mean |tau_h| overall and per phase [Nm], margins)."""
+    lines = [f"term breakdown, {out['duration_s']:.1f} s per run, command delay {out['delay_cycles']} cycles "
+             f"unless the variant says otherwise; mean |tau_h| [Nm]"]
+    for cname, res in out["results"].items():
+        lines.append(f"\n{cname}")
+        lines.append(f"  {'variant':<24}{'mean':>7}{'delta':>8}{'accel':>7}{'decel':>7}{'rest':>7}  margins")
+        for name, m in res.items():
+            v = out["variants"][name]
+            marg = (f"ok (PM {v['worst_phase_margin_deg']:.0f} deg, GM {v['worst_gain_margin_dB']:.1f} dB)"
+                    if v["margins_ok"] else "MISSED")
+            if "error" in m:
+                lines.append(f"  {name:<24}  stopped: {m['error']}")
+                continue
+            lines.append(f"  {name:<24}{m['mean_abs_tau_h_Nm']:>7.3f}{m['delta_vs_shipped_Nm']:>+8.3f}"
+                         f"{m['mean_abs_tau_h_accel_Nm']:>7.3f}{m['mean_abs_tau_h_decel_Nm']:>7.3f}"
+                         f"{m['mean_abs_tau_h_rest_Nm']:>7.3f}  {marg}  {v['description']}")
+    return "\n".join(lines)
