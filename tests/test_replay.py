@@ -16,7 +16,7 @@ from capstan.controller.law.core import Controller
 from capstan.controller.runtime.session_log import newest_log, open_session
 from capstan.controller.log.reader import read_log
 from capstan.controller.log.mcap_log import McapLog
-from capstan.controller.law.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
+from capstan.controller.law.records import LOG_FLOAT32_FIELDS, LOG_FLOAT32_QUANTA, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
 from capstan.tools.cli import main
 from capstan.tools.offline.replay import merge_config, replay_records
 
@@ -109,7 +109,11 @@ def test_daemon_log_layout_has_every_field_and_replays_bit_exactly(tmp_path: Pat
     data = read_log(path)
     assert data.records.dtype == RECORD_DTYPE and len(data.records) == len(recs)
     for f in RECORD_DTYPE.names:
-        if f in LOG_FLOAT32_FIELDS:
+        if f in LOG_FLOAT32_QUANTA:             # display copies rounded to their quantum
+            q = LOG_FLOAT32_QUANTA[f]
+            assert np.all(np.abs(data.records[f] - recs[f]) <= q / 2), f
+            np.testing.assert_array_equal(data.records[f] / q, np.round(data.records[f] / q))
+        elif f in LOG_FLOAT32_FIELDS:
             np.testing.assert_array_equal(data.records[f], recs[f].astype(np.float32).astype(np.float64))
         else:
             assert data.records[f].tobytes() == recs[f].tobytes(), f

@@ -26,9 +26,11 @@ from capstan.controller.log.schema import build_layout
 from capstan.controller.log.writer import LIVE_ZSTD_LEVEL
 
 
-def _encoded_bytes(records: np.ndarray, dtype: np.dtype, f32: tuple[str, ...], chunk: int) -> float:
+def _encoded_bytes(records: np.ndarray, dtype: np.dtype, f32: tuple[str, ...], chunk: int,
+                   quanta: dict[str, float]) -> float:
     """Compressed bytes per cycle of the message records (header + payload) in chunks."""
-    lay = build_layout(dtype, "capstan.Cycle", tuple(f for f in f32 if f in dtype.names))
+    f32 = tuple(f for f in f32 if f in dtype.names)
+    lay = build_layout(dtype, "capstan.Cycle", f32, {f: q for f, q in quanta.items() if f in f32})
     t = np.round(records["t_s"] * 1e9).astype(np.int64)
     rows = message_rows(1, t, lay.encode(records))
     cz = zstandard.ZstdCompressor(level=LIVE_ZSTD_LEVEL)
@@ -57,14 +59,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.fields:
         f32 = tuple(json.loads(cyc_ch.metadata.get("float32_fields", "[]")))
         dropped = tuple(json.loads(cyc_ch.metadata.get("derived_fields", "[]")))
+        quanta = json.loads(cyc_ch.metadata.get("float32_quanta", "{}"))
         dt = stored_dtype(data.records.dtype, dropped)
         chunk = int(round(DEFAULT_FLUSH_INTERVAL_S * 1000))
-        base = _encoded_bytes(data.records, dt, f32, chunk)
+        base = _encoded_bytes(data.records, dt, f32, chunk, quanta)
         print(f"  cycle messages re-encoded: {base:.1f} B/cycle compressed; per stored field "
               "(size with minus without it):")
         for name in dt.names:
-            cost = base - _encoded_bytes(data.records, stored_dtype(dt, (name,)), f32, chunk)
-            print(f"    {name:22s} {str(dt[name]) if name not in f32 else 'float32':8s} {cost:6.2f}")
+            cost = base - _encoded_bytes(data.records, stored_dtype(dt, (name,)), f32, chunk, quanta)
+            kind = str(dt[name]) if name not in f32 else "float32" if name not in quanta else f"f32/{quanta[name]:.2g}"
+            print(f"    {name:22s} {kind:9s} {cost:6.2f}")
     return 0
 
 

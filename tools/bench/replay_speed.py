@@ -51,7 +51,7 @@ def _stored_layout(path: Path) -> tuple[tuple[str, ...], tuple[str, ...], str]:
 
 def build_long_log(src: Path, out: Path, minutes: float) -> dict:
     """Write the long log (step 1 of the module doc); returns its figures."""
-    from capstan.controller.law.records import MEASUREMENT_FIELDS, STEP_OUTPUT_FIELDS
+    from capstan.controller.law.records import LOG_FLOAT32_QUANTA, MEASUREMENT_FIELDS, STEP_OUTPUT_FIELDS
     from capstan.tools.offline.replay import build_controller, replay_records
 
     data = read_log(src)
@@ -74,7 +74,8 @@ def build_long_log(src: Path, out: Path, minutes: float) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     log = McapLog(out.parent, out.stem, recs.dtype, data.config_yaml,
                   stats_dtype=data.stats.dtype if data.stats is not None else None, flush_interval_s=0,
-                  first_path=out, float32_fields=f32, zstd_level=LIVE_ZSTD_LEVEL, drop_fields=derived)
+                  first_path=out, float32_fields=f32, zstd_level=LIVE_ZSTD_LEVEL, drop_fields=derived,
+                  float32_quanta={f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in f32})
     log.add_metadata(DERIVATIONS_META, {"derivations": deriv_json})
     stats = data.stats
     for i, a in enumerate(range(0, len(recs), CHUNK_CYCLES)):
