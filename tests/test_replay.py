@@ -84,6 +84,11 @@ def test_replay_with_logged_config_is_bit_exact(run_log, capsys) -> None:
     rep = json.loads(capsys.readouterr().out)
     assert rep["cycles"] == 4000 and rep["config"] == "logged"
     assert rep["max_abs_dtau_m_Nm"] == 0.0 and rep["cycles_different"] == 0
+    # CPU seconds of the two parts the speed figure counts (never more than the process
+    # could use in that wall time on two cores, never nothing)
+    assert 0 < rep["read_cpu_s"] <= 2 * rep["read_wall_s"] + 0.01
+    assert 0 < rep["step_cpu_s"] <= 2 * rep["step_wall_s"] + 0.01
+    assert rep["speed_x_realtime_cpu"] == pytest.approx(rep["duration_s"] / (rep["read_cpu_s"] + rep["step_cpu_s"]))
 
 
 def test_replay_of_log_with_float32_intermediates_is_exact(tmp_path: Path, run_log, capsys) -> None:
