@@ -135,7 +135,7 @@ LOOP_GATING_FIELDS: tuple[str, ...] = ("phase", "cmd_scale")
 #:
 #: * the step's intermediates and state (``tau_in_Nm`` ... ``tau_m_raw_Nm``): a replay
 #:   recomputes them bit for bit from the logged inputs and config, so the log keeps a
-#:   copy for plotting at 7 significant digits and loses no information;
+#:   copy for plotting (rounded to :data:`LOG_FLOAT32_QUANTA`) and loses no information;
 #: * ``period_s`` and ``compute_s``: differences of integer nanosecond clock readings;
 #:   from their float32 the nanoseconds are recovered exactly up to 15.6 ms (1 ns off
 #:   up to 31 ms), i.e. float32 keeps what the clock gave.
