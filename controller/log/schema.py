@@ -9,6 +9,10 @@ number of bytes and encoding/decoding is a numpy view with per-field offsets::
     int64 -> sfixed64                uint64 -> fixed64
     bool -> bool (varint, one byte 0/1)
 
+A float64 field can be stored as float32 (``float32_fields``), and such a field
+rounded to a power-of-two quantum first (``float32_quanta``, :func:`quantize_float32`):
+for display copies of values a replay recomputes, whose low mantissa bits then compress.
+
 The schema is a ``google.protobuf.FileDescriptorSet`` built by hand (no protobuf
 package needed), schema encoding ``protobuf``, so Foxglove can decode and plot every
 field. Events use JSON with a JSON schema (:data:`EVENT_JSON_SCHEMA`).
