@@ -26,6 +26,13 @@ def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
                                       for n in a.dtype.names)
 
 
+def _chunk_bytes(path: Path) -> int:
+    """Bytes of the file's chunks with their message indexes (from its summary)."""
+    with open(path, "rb") as fh:
+        return sum(ix.chunk_length + ix.message_index_length
+                   for ix in mcap_reader.make_reader(fh).get_summary().chunk_indexes)
+
+
 def test_archive_without_a_controller_stores_every_column_and_reads_back_exactly(tmp_path: Path) -> None:
     dt = np.dtype([("cycle", "<u8"), ("t_s", "<f8"), ("t_ns", "<i8"), ("lc_t_ns", "<i8"), ("x", "<f8"),
                    ("y", "<f4"), ("k", "<i2"), ("flag", "u1")])
@@ -59,7 +66,11 @@ def test_hil_log_archive_export_equals_live_export(tmp_path: Path, capsys) -> No
     arch = tmp_path / "run.archive.mcap"
     assert main(["archive", str(live), "--out", str(arch), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
-    assert rep["archive_bytes"] < 0.4 * rep["live_bytes"]
+    # the issue's target, ≤ 120 MB/hour at 1 kHz = 33.3 B per cycle, on what grows with the
+    # run: the archive's chunks (cycle blocks, events, stats); a 4 s file's fixed parts
+    # (metadata, schemas, summary: about 12 kB) would count 3 B/cycle here and 0.1 in an hour
+    assert _chunk_bytes(arch) / out["cycles"] <= 120e6 / 3.6e6
+    assert _chunk_bytes(arch) < 120 / 250 * _chunk_bytes(live)      # the two targets' ratio
     assert "tau_m_cmd_Nm" in rep["recomputed_fields"] and "d_hat_Nm" in rep["recomputed_fields"]
     assert _bits_equal(read_any(arch).records, read_log(live).records)
     for src, csv in ((live, tmp_path / "live.csv"), (arch, tmp_path / "arch.csv")):

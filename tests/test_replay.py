@@ -16,7 +16,7 @@ from capstan.controller.law.core import Controller
 from capstan.controller.runtime.session_log import newest_log, open_session
 from capstan.controller.log.reader import read_log
 from capstan.controller.log.mcap_log import McapLog
-from capstan.controller.law.records import LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
+from capstan.controller.law.records import LOG_FLOAT32_FIELDS, LOG_FLOAT32_QUANTA, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS
 from capstan.tools.cli import main
 from capstan.tools.offline.replay import merge_config, replay_records
 
@@ -84,6 +84,11 @@ def test_replay_with_logged_config_is_bit_exact(run_log, capsys) -> None:
     rep = json.loads(capsys.readouterr().out)
     assert rep["cycles"] == 4000 and rep["config"] == "logged"
     assert rep["max_abs_dtau_m_Nm"] == 0.0 and rep["cycles_different"] == 0
+    # CPU seconds of the two parts the speed figure counts (never more than the process
+    # could use in that wall time on two cores, never nothing)
+    assert 0 < rep["read_cpu_s"] <= 2 * rep["read_wall_s"] + 0.01
+    assert 0 < rep["step_cpu_s"] <= 2 * rep["step_wall_s"] + 0.01
+    assert rep["speed_x_realtime_cpu"] == pytest.approx(rep["duration_s"] / (rep["read_cpu_s"] + rep["step_cpu_s"]))
 
 
 def test_replay_of_log_with_float32_intermediates_is_exact(tmp_path: Path, run_log, capsys) -> None:
@@ -109,7 +114,11 @@ def test_daemon_log_layout_has_every_field_and_replays_bit_exactly(tmp_path: Pat
     data = read_log(path)
     assert data.records.dtype == RECORD_DTYPE and len(data.records) == len(recs)
     for f in RECORD_DTYPE.names:
-        if f in LOG_FLOAT32_FIELDS:
+        if f in LOG_FLOAT32_QUANTA:             # display copies rounded to their quantum
+            q = LOG_FLOAT32_QUANTA[f]
+            assert np.all(np.abs(data.records[f] - recs[f]) <= q / 2), f
+            np.testing.assert_array_equal(data.records[f] / q, np.round(data.records[f] / q))
+        elif f in LOG_FLOAT32_FIELDS:
             np.testing.assert_array_equal(data.records[f], recs[f].astype(np.float32).astype(np.float64))
         else:
             assert data.records[f].tobytes() == recs[f].tobytes(), f

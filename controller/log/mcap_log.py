@@ -29,6 +29,7 @@ import os
 import socket
 import time
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -105,6 +106,10 @@ class McapLog:
     :param extra_meta: more key -> text pairs for the ``capstan.log`` metadata record.
     :param float32_fields: float64 record fields stored rounded to float32 (smaller
         files; only for fields replay recomputes).
+    :param float32_quanta: float32 field -> power-of-two quantum it is rounded to
+        before the float32 cast (display copies of values replay recomputes; see
+        :func:`capstan.controller.log.schema.quantize_float32`); recorded in the cycle
+        channel's ``float32_quanta`` metadata.
     :param first_path: exact path of the first file (offline what-if logs); later
         rotated files follow the naming pattern.
     :param keep_bytes: retention: after each new file is opened, the oldest
@@ -124,7 +129,7 @@ class McapLog:
                  time_field: str = "t_s", extra_meta: dict[str, str] | None = None,
                  first_path: str | Path | None = None, float32_fields: tuple[str, ...] = (),
                  zstd_level: int = DEFAULT_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
-                 keep_bytes: int = 0) -> None:
+                 keep_bytes: int = 0, float32_quanta: Mapping[str, float] | None = None) -> None:
         comp = {"zstd": "zstd", "lz4": "lz4", "none": ""}
         if compression not in comp:
             raise ValueError(f"compression must be one of {', '.join(comp)}, got {compression!r}")
@@ -136,7 +141,7 @@ class McapLog:
         self.record_dtype = np.dtype(record_dtype)
         self.drop_fields = tuple(drop_fields)
         self.layout: ProtoLayout = build_layout(stored_dtype(self.record_dtype, self.drop_fields),
-                                                "capstan.Cycle", tuple(float32_fields))
+                                                "capstan.Cycle", tuple(float32_fields), float32_quanta)
         self._metadata: dict[str, dict[str, str]] = {}
         self.stats_layout = build_layout(stats_dtype, "capstan.Stats") if stats_dtype is not None else None
         self.config_yaml = config_yaml
@@ -192,6 +197,8 @@ class McapLog:
         w.add_metadata("capstan.log", meta)
         sid = w.register_schema(self.layout.message_name, SCHEMA_ENCODING, self.layout.schema)
         ch_meta = {"numpy_dtype": meta["numpy_dtype"], "float32_fields": json.dumps(list(self.float32_fields))}
+        if self.layout.quanta:
+            ch_meta["float32_quanta"] = json.dumps(dict(self.layout.quanta))
         if self.drop_fields:
             ch_meta["record_dtype"] = json.dumps(dtype_to_json(self.record_dtype))
             ch_meta["derived_fields"] = json.dumps(list(self.drop_fields))

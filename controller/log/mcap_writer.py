@@ -19,8 +19,10 @@ File layout written::
 Message indexes cost 16 uncompressed bytes per message, but Foxglove needs them: its
 indexed reader (``@mcap/core`` ``McapIndexedReader``, used for any file with chunk
 indexes) refuses a chunk index without message indexes ("Encountered a chunk index
-without message indexes and non-zero start and end times"), and reads only the messages
-they list. ``message_index=False`` leaves them out (and then the chunk indexes too, so
+without message indexes and non-zero start and end times", ``ChunkCursor``'s
+constructor), and reads only the messages they list (``readMessages`` takes each
+message's offset from ``ChunkCursor.loadMessageIndexes``). The Python ``mcap`` reader
+would read chunks from chunk indexes alone; Foxglove decides the layout. ``message_index=False`` leaves them out (and then the chunk indexes too, so
 such readers fall back to streaming the file) for offline files that only this project
 reads.
 

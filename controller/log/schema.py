@@ -9,6 +9,10 @@ number of bytes and encoding/decoding is a numpy view with per-field offsets::
     int64 -> sfixed64                uint64 -> fixed64
     bool -> bool (varint, one byte 0/1)
 
+A float64 field can be stored as float32 (``float32_fields``), and such a field
+rounded to a power-of-two quantum first (``float32_quanta``, :func:`quantize_float32`):
+for display copies of values a replay recomputes, whose low mantissa bits then compress.
+
 The schema is a ``google.protobuf.FileDescriptorSet`` built by hand (no protobuf
 package needed), schema encoding ``protobuf``, so Foxglove can decode and plot every
 field. Events use JSON with a JSON schema (:data:`EVENT_JSON_SCHEMA`).
@@ -17,7 +21,9 @@ field. Events use JSON with a JSON schema (:data:`EVENT_JSON_SCHEMA`).
 from __future__ import annotations
 
 import json
+import math
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,6 +106,8 @@ class ProtoLayout:
     wire_dtype: np.dtype
     template: np.ndarray
     schema: bytes
+    #: (field, quantum) of float32 fields stored rounded to a multiple of a power of two
+    quanta: tuple[tuple[str, float], ...] = ()
 
     @property
     def message_size(self) -> int:
@@ -114,6 +122,8 @@ class ProtoLayout:
         wire = buf.reshape(-1).view(self.wire_dtype)
         for name in self.dtype.names:
             wire[name] = records[name]
+        for name, q in self.quanta:
+            wire[name] = quantize_float32(records[name], q)
         return buf
 
     def decode(self, data: bytes | bytearray | memoryview | np.ndarray, check: bool = True) -> np.ndarray:
@@ -241,16 +251,49 @@ class ProtoLayout:
         return mask
 
 
+def check_quantum(name: str, quantum: float) -> float:
+    """``quantum`` as a float if it is a power of two (2**k, any integer k).
+
+    :raises LogFormatError: naming the field, if it is not finite, positive and a power of two.
+    """
+    try:
+        q = float(quantum)
+    except (TypeError, ValueError):
+        raise LogFormatError(f"float32 quantum of '{name}': {quantum!r} is not a number") from None
+    if not (math.isfinite(q) and q > 0 and math.frexp(q)[0] == 0.5):
+        raise LogFormatError(f"float32 quantum of '{name}': {quantum!r} is not a power of two "
+                             "(2**k; only those leave the low mantissa bits zero)")
+    return q
+
+
+def quantize_float32(values: np.ndarray, quantum: float) -> np.ndarray:
+    """``values`` rounded to the nearest multiple of ``quantum`` (a power of two, ties
+    to even), as float32. Exact below ``2**24 * quantum`` in magnitude (the multiple is
+    a float32; above that float32 rounding applies); NaN and infinities pass unchanged.
+    Division and multiplication by a power of two are exact, so the result depends only
+    on the value: a reader that applies it to a recomputed value gets the stored bits.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return (np.round(x / quantum) * quantum).astype(np.float32)
+
+
 def build_layout(dtype: np.dtype, message_name: str = "capstan.Cycle",
-                 float32_fields: tuple[str, ...] = ()) -> ProtoLayout:
+                 float32_fields: tuple[str, ...] = (),
+                 float32_quanta: Mapping[str, float] | None = None) -> ProtoLayout:
     """Build the protobuf codec and FileDescriptorSet for a flat structured dtype.
 
     :param message_name: ``package.Message``; the package part may be empty.
     :param float32_fields: float64 fields stored as protobuf ``float`` (lossy: rounded
         to float32, about 7 significant digits; decoded back to float64). Use it for
         values that are recomputed on replay, never for replay inputs or the command.
+    :param float32_quanta: float32 field -> quantum (a power of two, in the field's
+        unit): the field is stored rounded to a multiple of it
+        (:func:`quantize_float32`), which leaves the low mantissa bits zero so the
+        values compress; for display copies of values a replay recomputes.
     :raises LogFormatError: if the dtype is not structured, has nested/array fields or
-        a field type that cannot be logged, or a float32 field is unknown / not float64.
+        a field type that cannot be logged, a float32 field is unknown / not float64, or
+        a quantum names a field that is not a float32 field or is not a power of two.
     """
     dtype = np.dtype(dtype)
     if dtype.names is None:
@@ -258,6 +301,11 @@ def build_layout(dtype: np.dtype, message_name: str = "capstan.Cycle",
     for name in float32_fields:
         if name not in dtype.names or dtype.fields[name][0] != np.float64:
             raise LogFormatError(f"float32 field '{name}': not a float64 field of the record")
+    quanta = []
+    for name, q in (float32_quanta or {}).items():
+        if name not in float32_fields:
+            raise LogFormatError(f"float32 quantum of '{name}': not one of the float32 fields")
+        quanta.append((name, check_quantum(name, q)))
     package, _, short = message_name.rpartition(".")
     names, formats, offsets, fields_desc = [], [], [], b""
     template = bytearray()
@@ -284,7 +332,7 @@ def build_layout(dtype: np.dtype, message_name: str = "capstan.Cycle",
                   + _len_field(4, message) + _len_field(12, b"proto3"))
     schema = _len_field(1, file_proto)
     return ProtoLayout(dtype, message_name, wire_dtype,
-                       np.frombuffer(bytes(template), dtype=np.uint8).copy(), schema)
+                       np.frombuffer(bytes(template), dtype=np.uint8).copy(), schema, tuple(quanta))
 
 
 #: JSON schema of the ``/capstan/events`` channel (faults, drops, writer notices)

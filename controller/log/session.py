@@ -31,6 +31,7 @@ import sys
 import time
 from enum import IntEnum
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -98,11 +99,13 @@ class LogSession:
     :param float32_fields: float64 fields stored rounded to float32 (see
         :func:`capstan.controller.log.schema.build_layout`); never replay inputs or the command.
     :param zstd_level: zstd level of the chunks (1..22).
+    :param float32_quanta: float32 field -> power-of-two quantum it is stored rounded to
+        (:func:`capstan.controller.log.schema.quantize_float32`).
     :param drop_fields: record fields not stored (rebuilt by readers from wire fields).
     :param on_writer_loss: ``"restart"`` (a new writer, a new file, the gap as an event)
         or ``"stop"`` (:meth:`supervise` reports LOST at the first death).
     :param max_writer_restarts: restarts allowed before the writer counts as LOST.
-    :raises LogFormatError: if the dtype cannot be logged or a float32 field is invalid.
+    :raises LogFormatError: if the dtype cannot be logged or a float32 field or quantum is invalid.
     :raises ValueError: on a zstd level out of 1..22, an unknown policy or a negative
         restart count.
     """
@@ -113,10 +116,11 @@ class LogSession:
                  rotate_size_bytes: int = 0, rotate_time_s: float = 0.0,
                  compression: str = "zstd", float32_fields: tuple[str, ...] = (),
                  zstd_level: int = LIVE_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
-                 on_writer_loss: str = "restart", max_writer_restarts: int = 3, keep_bytes: int = 0) -> None:
+                 on_writer_loss: str = "restart", max_writer_restarts: int = 3, keep_bytes: int = 0,
+                 float32_quanta: Mapping[str, float] | None = None) -> None:
         # fail here, not in the writer
         build_layout(stored_dtype(np.dtype(record_dtype), tuple(drop_fields)), "capstan.Cycle",
-                     tuple(float32_fields))
+                     tuple(float32_fields), float32_quanta)
         if not 1 <= int(zstd_level) <= 22:
             raise ValueError(f"zstd level must be 1..22, got {zstd_level}")
         if on_writer_loss not in WRITER_LOSS_POLICIES:
@@ -159,7 +163,8 @@ class LogSession:
                       "--rotate-time-s", str(rotate_time_s), "--compression", compression,
                       "--fault-history", str(fault_history_n),
                       "--float32-fields", ",".join(float32_fields), "--zstd-level", str(int(zstd_level)),
-                      "--drop-fields", ",".join(drop_fields), "--keep-bytes", str(int(keep_bytes))]
+                      "--drop-fields", ",".join(drop_fields), "--keep-bytes", str(int(keep_bytes)),
+                      "--float32-quanta", json.dumps({k: float(v) for k, v in (float32_quanta or {}).items()})]
         self.proc: subprocess.Popen | None = None
 
     def start(self, ready_timeout_s: float = 10.0) -> None:

@@ -76,7 +76,8 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                parent_pid: int = 0, stop_flag: list[bool] | None = None,
                float32_fields: tuple[str, ...] = (), zstd_level: int = LIVE_ZSTD_LEVEL,
                meta: LogRing | None = None, drop_fields: tuple[str, ...] = (),
-               gap_after_cycle: int | None = None, gap_reason: str = "", keep_bytes: int = 0) -> McapLog:
+               gap_after_cycle: int | None = None, gap_reason: str = "", keep_bytes: int = 0,
+               float32_quanta: dict[str, float] | None = None) -> McapLog:
     """Drain the rings into MCAP until the producer closes, dies, or ``stop_flag[0]``.
 
     :param gap_after_cycle: this writer replaces a dead one whose last record on disk had
@@ -93,7 +94,7 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                    rotate_size_bytes=rotate_size_bytes, rotate_time_s=rotate_time_s,
                    flush_interval_s=flush_interval_s, compression=compression,
                    float32_fields=float32_fields, zstd_level=zstd_level, drop_fields=drop_fields,
-                   keep_bytes=keep_bytes)
+                   keep_bytes=keep_bytes, float32_quanta=float32_quanta)
     hist = _History(cycle.dtype, fault_history_n)
     cycle.set_consumer_ready()
     producer = parent_pid or cycle.producer_pid
@@ -220,6 +221,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--parent-pid", type=int, default=0)
     p.add_argument("--float32-fields", default="", help="comma-separated fields stored as float32")
     p.add_argument("--zstd-level", type=int, default=LIVE_ZSTD_LEVEL, help="zstd level of the chunks")
+    p.add_argument("--float32-quanta", default="{}",
+                   help="JSON object: float32 field -> power-of-two quantum it is stored rounded to")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s log_writer: %(message)s")
@@ -246,7 +249,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                float32_fields=tuple(f for f in args.float32_fields.split(",") if f),
                zstd_level=args.zstd_level, meta=meta,
                drop_fields=tuple(f for f in args.drop_fields.split(",") if f),
-               gap_after_cycle=args.gap_after_cycle, gap_reason=args.gap_reason, keep_bytes=args.keep_bytes)
+               gap_after_cycle=args.gap_after_cycle, gap_reason=args.gap_reason, keep_bytes=args.keep_bytes,
+               float32_quanta=json.loads(args.float32_quanta))
     orphaned = not pid_alive(args.parent_pid or cycle.producer_pid)
     for ring in (cycle, events, stats, meta):
         if ring is not None:

@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS
+from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS, LOG_FLOAT32_QUANTA
 from capstan.controller.runtime.link_report import LINK_STATS_FIELDS
 from capstan.controller.runtime.timing import WindowReport
 
@@ -111,7 +111,8 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
     """Create the rings and start the writer process.
 
     The fields of :data:`capstan.controller.law.records.LOG_FLOAT32_FIELDS` that the record has are
-    stored as float32 (recomputed by a replay, or integer-nanosecond timing).
+    stored as float32 (recomputed by a replay, or integer-nanosecond timing), the step
+    intermediates rounded to the quanta of :data:`capstan.controller.law.records.LOG_FLOAT32_QUANTA`.
 
     :param wire: store the measurements as the devices sent them: the SI fields of
         :data:`capstan.controller.law.records.DERIVED_FROM_WIRE` are left out (a reader
@@ -142,7 +143,8 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
                          capacity=ring_records, prefix=prefix, fault_history_n=fault_history_cycles,
                          float32_fields=f32, drop_fields=drop, on_writer_loss=on_writer_loss,
                          max_writer_restarts=max_writer_restarts, rotate_size_bytes=int(rotate_size_MB * 1e6),
-                         rotate_time_s=rotate_age_s, keep_bytes=int(keep_newest_GB * 1e9))
+                         rotate_time_s=rotate_age_s, keep_bytes=int(keep_newest_GB * 1e9),
+                         float32_quanta={f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in f32})
     session.start()
     return session
 

@@ -34,7 +34,7 @@ from capstan.controller.log.reader import read_log
 from capstan.controller.log.ring import LogRing
 from capstan.controller.log.writer import LIVE_ZSTD_LEVEL, LogSession, run_writer
 from capstan.controller.log.mcap_log import DEFAULT_FLUSH_INTERVAL_S, McapLog
-from capstan.controller.law.records import (LOG_FLOAT32_FIELDS, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS,
+from capstan.controller.law.records import (LOG_FLOAT32_FIELDS, LOG_FLOAT32_QUANTA, MEASUREMENT_FIELDS, RECORD_DTYPE, STEP_OUTPUT_FIELDS,
                                 loop_command)
 from capstan.controller.law.records import DERIVED_FROM_WIRE
 from capstan.controller.log.mcap_log import DERIVATIONS_META
@@ -148,6 +148,11 @@ def realistic_records(n: int, seed: int = 7) -> np.ndarray:
     return out
 
 
+def _quanta(float32_fields: tuple[str, ...]) -> dict[str, float]:
+    """The daemon's quanta (:data:`LOG_FLOAT32_QUANTA`) of those of ``float32_fields`` it rounds."""
+    return {f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in float32_fields}
+
+
 def live_run(records: np.ndarray, rate_hz: float, out_dir: Path, flush_interval_s: float,
              compression: str, float32_fields: tuple[str, ...], zstd_level: int) -> dict:
     """Push ``records`` at ``rate_hz`` into a LogSession; returns the figures (the
@@ -155,7 +160,7 @@ def live_run(records: np.ndarray, rate_hz: float, out_dir: Path, flush_interval_
     s = LogSession(RECORD_DTYPE, out_dir, yaml.safe_dump(CONFIG), stats_dtype=STATS_DTYPE,
                    flush_interval_s=flush_interval_s, compression=compression,
                    float32_fields=float32_fields + ("imu_rate_rad_s",), zstd_level=zstd_level,
-                   drop_fields=tuple(DERIVED_FROM_WIRE))
+                   drop_fields=tuple(DERIVED_FROM_WIRE), float32_quanta=_quanta(float32_fields))
     cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     s.start()
     s.metadata(DERIVATIONS_META, {"derivations": [d.to_json() for d in WIRE_DERIVATIONS]})
@@ -197,6 +202,7 @@ def file_bytes(records: np.ndarray, out_dir: Path, float32_fields: tuple[str, ..
     log = McapLog(out_dir, "offline", records.dtype, yaml.safe_dump(CONFIG), flush_interval_s=0,
                   compression=compression, zstd_level=zstd_level,
                   float32_fields=tuple(f for f in float32_fields if f in records.dtype.names),
+                  float32_quanta=_quanta(tuple(f for f in float32_fields if f in records.dtype.names)),
                   # wire layout: t_s gives the message times but is not stored (t_ns is)
                   drop_fields=("t_s",) if "lc_t_ns" in records.dtype.names else ())
     for i in range(0, len(records), chunk_records):

@@ -9,16 +9,19 @@
    controller over the whole log (so the commands in the file are what this controller
    computes), and written through :class:`capstan.controller.log.mcap_log.McapLog` with
    the daemon's layout (the source log's stored fields, float32 fields, derivations
-   metadata, zstd level, a chunk per 0.8 s of cycles);
+   metadata, the daemon's float32 quanta, zstd level, a chunk per 0.8 s of cycles);
 2. runs ``capstan replay LOG --json`` ``--runs`` times in fresh processes and prints
    the median and the spread of the read time, the step time, x real time, and max
-   |dtau_m| (must be 0).
+   |dtau_m| (must be 0); also the CPU seconds the replay process used for reading and
+   stepping (x real time per CPU second: the figure on a machine with a core to spare)
+   and the load average.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -51,7 +54,7 @@ def _stored_layout(path: Path) -> tuple[tuple[str, ...], tuple[str, ...], str]:
 
 def build_long_log(src: Path, out: Path, minutes: float) -> dict:
     """Write the long log (step 1 of the module doc); returns its figures."""
-    from capstan.controller.law.records import MEASUREMENT_FIELDS, STEP_OUTPUT_FIELDS
+    from capstan.controller.law.records import LOG_FLOAT32_QUANTA, MEASUREMENT_FIELDS, STEP_OUTPUT_FIELDS
     from capstan.tools.offline.replay import build_controller, replay_records
 
     data = read_log(src)
@@ -74,7 +77,8 @@ def build_long_log(src: Path, out: Path, minutes: float) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     log = McapLog(out.parent, out.stem, recs.dtype, data.config_yaml,
                   stats_dtype=data.stats.dtype if data.stats is not None else None, flush_interval_s=0,
-                  first_path=out, float32_fields=f32, zstd_level=LIVE_ZSTD_LEVEL, drop_fields=derived)
+                  first_path=out, float32_fields=f32, zstd_level=LIVE_ZSTD_LEVEL, drop_fields=derived,
+                  float32_quanta={f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in f32})
     log.add_metadata(DERIVATIONS_META, {"derivations": deriv_json})
     stats = data.stats
     for i, a in enumerate(range(0, len(recs), CHUNK_CYCLES)):
@@ -125,10 +129,11 @@ def main() -> int:
         fig = build_long_log(src, out, a.minutes)
         print(f"long log {out}: {fig['cycles']} cycles, {fig['duration_s']:.1f} s, "
               f"{fig['bytes'] / 1e6:.1f} MB ({fig['repetitions']} x {fig['source_cycles']} cycles of {src.name})")
+    a_load_before = os.getloadavg()[0]
     reps = run_replays(out, a.runs)
     med = {k: statistics.median(r[k] for r in reps)
            for k in ("read_wall_s", "step_wall_s", "speed_x_realtime", "process_wall_s", "decoder_load_s",
-                     "controller_build_s")}
+                     "controller_build_s", "read_cpu_s", "step_cpu_s", "speed_x_realtime_cpu")}
     dur = reps[0]["duration_s"]
     print(f"replay of {reps[0]['cycles']} cycles ({dur:.1f} s), {a.runs} runs: max |dtau_m| = "
           f"{max(r['max_abs_dtau_m_Nm'] for r in reps)} Nm, cycles different {max(r['cycles_different'] for r in reps)}")
@@ -138,6 +143,12 @@ def main() -> int:
           f"  = {1e6 * med['step_wall_s'] / reps[0]['cycles']:.2f} us/cycle")
     print(f"  x real time (duration / (read + step)): median {med['speed_x_realtime']:.0f} "
           f"({_each(reps, 'speed_x_realtime', '.0f')})")
+    print(f"  CPU of the replay process: read median {med['read_cpu_s']:.3f} s, step {med['step_cpu_s']:.3f} s "
+          f"-> x real time per CPU second (duration / (read + step CPU)): median "
+          f"{med['speed_x_realtime_cpu']:.0f} ({_each(reps, 'speed_x_realtime_cpu', '.0f')}); "
+          f"wall / CPU = {(med['read_wall_s'] + med['step_wall_s']) / (med['read_cpu_s'] + med['step_cpu_s']):.2f} "
+          f"(> 1: the process waited for a CPU)")
+    print(f"  load average {a_load_before:.2f} before, {os.getloadavg()[0]:.2f} after (2-core VM shared with other work)")
     print(f"  fixed start-up: controller build {med['controller_build_s']:.2f} s, decoder load "
           f"{med['decoder_load_s']:.2f} s; whole process median {med['process_wall_s']:.2f} s "
           f"= {dur / med['process_wall_s']:.0f}x real time end to end")

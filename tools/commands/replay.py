@@ -86,12 +86,13 @@ def run(args: argparse.Namespace) -> int:
     t_load = time.perf_counter()
     wire_decode.warmup()                     # a fixed start-up, like the controller build
     decoder_load_s = time.perf_counter() - t_load
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     big = sum(p.stat().st_size for p in paths if p.exists()) > 20_000_000
     bar = Progress("read  ", enabled=big and len(paths) == 1)
     data = read_any(paths[0], bar.update, fields) if len(paths) == 1 else read_logs(paths, fields)
     bar.done()
     read_s = time.perf_counter() - t_start
+    read_cpu_s = time.process_time() - cpu_start
     if data.meta.get("file_index", "0") != "0":
         _log.warning("%s is not the first file of its run: the controller state at its start "
                      "is unknown, commands will differ", paths[0])
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     n = len(data.records)
     bar = Progress("replay", enabled=n >= PROGRESS_MIN_CYCLES)
     res = replay_records(data.records, ctl, inputs, STEP_OUTPUT_FIELDS, progress=bar.update)
+    step_cpu_s = res.cpu_s
     bar.done()
     per_log_s = read_s + res.wall_s          # grows with the log; build_s, decoder_load_s: fixed start-up
     duration_s = float(data.records["t_s"][-1] - data.records["t_s"][0]) if n > 1 else 0.0
@@ -119,6 +121,11 @@ def run(args: argparse.Namespace) -> int:
         "first_different_cycle": res.first_different, "step_wall_s": res.wall_s,
         "read_wall_s": read_s, "controller_build_s": build_s, "decoder_load_s": decoder_load_s,
         "speed_x_realtime": duration_s / per_log_s if per_log_s > 0 else None,
+        # CPU seconds of this process (all threads) for the same two parts: what the
+        # replay costs, apart from how much of a CPU a loaded machine gave it
+        "read_cpu_s": read_cpu_s, "step_cpu_s": step_cpu_s,
+        "speed_x_realtime_cpu": (duration_s / (read_cpu_s + step_cpu_s)
+                                 if read_cpu_s + step_cpu_s > 0 else None),
     }
     if override is not None:
         out = Path(args.out) if args.out else paths[0].with_name(paths[0].stem + "_whatif.mcap")

@@ -33,7 +33,7 @@ from capstan.controller.log.mcap_log import CYCLE_TOPIC, DERIVATIONS_META, EVENT
 from capstan.controller.log.mcap_writer import McapChunkWriter
 from capstan.controller.log.reader import LogData, read_log, rebuild_derived
 from capstan.controller.log.ring import dtype_from_json, dtype_to_json
-from capstan.controller.log.schema import build_layout
+from capstan.controller.log.schema import build_layout, quantize_float32
 from capstan.models.common.errors import DataFormatError
 
 ARCHIVE_TOPIC = "/capstan/archive/cycles"
@@ -71,7 +71,10 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.dtype == b.dtype and np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
 
 
-def _as_stored(values: np.ndarray, f32: bool) -> np.ndarray:
+def _as_stored(values: np.ndarray, f32: bool, quantum: float | None = None) -> np.ndarray:
+    """``values`` as the live log stores them (float32, rounded to ``quantum`` if given)."""
+    if quantum is not None:
+        return quantize_float32(values, quantum).astype(np.float64)
     return values.astype(np.float32).astype(np.float64) if f32 else values
 
 
@@ -99,11 +102,12 @@ def write_archive(src: str | Path, out: str | Path,
     cyc = chans[CYCLE_TOPIC]
     f32 = tuple(json.loads(cyc.metadata.get("float32_fields", "[]")))
     dropped = tuple(json.loads(cyc.metadata.get("derived_fields", "[]")))
+    quanta = {k: float(v) for k, v in json.loads(cyc.metadata.get("float32_quanta", "{}")).items()}
     rec = data.records
     stored = stored_dtype(rec.dtype, dropped)
     replayed = _replay_outputs(data)
     recomputed = tuple(f for f in STEP_OUTPUT_FIELDS if f in stored.names and replayed is not None
-                       and _same_bits(_as_stored(replayed[f], f in f32), rec[f]))
+                       and _same_bits(_as_stored(replayed[f], f in f32, quanta.get(f)), rec[f]))
     cols = []
     time_col = "t_ns" if "t_ns" in stored.names else ""
     for name in stored.names:
@@ -122,7 +126,7 @@ def write_archive(src: str | Path, out: str | Path,
         w.add_metadata(ARCHIVE_META, {
             "format_version": "1", "source": src.name, "columns": json.dumps([c.to_json() for c in cols]),
             "record_dtype": json.dumps(dtype_to_json(rec.dtype)), "recomputed_fields": json.dumps(recomputed),
-            "float32_fields": json.dumps(f32), "time_column": time_col})
+            "float32_fields": json.dumps(f32), "float32_quanta": json.dumps(quanta), "time_column": time_col})
         sid = w.register_schema(BLOCK_MESSAGE, "protobuf", block_schema(cols))
         ach = w.register_channel(ARCHIVE_TOPIC, "protobuf", sid, {})
         ids = {}
@@ -181,6 +185,7 @@ def read_archive(path: str | Path) -> LogData:
     record_dtype = dtype_from_json(json.loads(am["record_dtype"]))
     recomputed = tuple(json.loads(am["recomputed_fields"]))
     f32 = set(json.loads(am.get("float32_fields", "[]")))
+    quanta = {k: float(v) for k, v in json.loads(am.get("float32_quanta", "{}")).items()}
     held = np.dtype([(c.name, c.dtype) for c in cols])
     st = np.zeros(sum(len(x[cols[0].name]) for x in parts) if parts and cols else 0, held)
     for c in cols:
@@ -198,7 +203,7 @@ def read_archive(path: str | Path) -> LogData:
             raise DataFormatError(f"{p}: archive needs the replay to rebuild {', '.join(recomputed)}, "
                                   "but the stored config does not build a controller")
         for n in recomputed:
-            records[n] = _as_stored(replayed[n], n in f32)
+            records[n] = _as_stored(replayed[n], n in f32, quanta.get(n))
     stats = None
     if stats_ch is not None and stats_raw:
         lay = build_layout(dtype_from_json(json.loads(stats_ch.metadata["numpy_dtype"])), "capstan.Stats")

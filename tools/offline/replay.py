@@ -28,6 +28,8 @@ class ReplayResult:
     :ivar n_different: cycles whose command differs in any bit.
     :ivar first_different: index of the first such cycle, -1 if none.
     :ivar wall_s: time spent stepping [s].
+    :ivar cpu_s: CPU time of the process while stepping [s] (``wall_s`` without the
+        waits for a CPU on a loaded machine).
     """
 
     replayed: np.ndarray
@@ -35,6 +37,7 @@ class ReplayResult:
     n_different: int
     first_different: int
     wall_s: float
+    cpu_s: float = 0.0
 
 
 #: a NaN payload no controller computes; detects whether the step wrote in place
@@ -106,7 +109,7 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
     todo = np.flatnonzero(stepped)
     step = ctl.step
     own_record = ctl.record
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     batch = getattr(ctl, "step_many", None)
     try:
         if callable(batch):
@@ -155,7 +158,7 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
                 progress(i, n)
     finally:
         ctl.record = own_record
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     if progress is not None:
         progress(n, n)
     for name in dtype.names:
@@ -176,4 +179,4 @@ def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
     dabs[np.isnan(a) & np.isnan(b)] = 0.0
     dabs[np.isnan(dabs)] = np.inf
     first = int(np.argmax(differ)) if differ.any() else -1
-    return ReplayResult(out, float(dabs.max()) if n else 0.0, int(differ.sum()), first, wall)
+    return ReplayResult(out, float(dabs.max()) if n else 0.0, int(differ.sum()), first, wall, cpu)
