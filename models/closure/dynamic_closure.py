@@ -54,7 +54,8 @@ def setup(train: Signals, test: Signals) -> DynamicSetup:
     """
     fit = fit_dynamic(train)
     tgt = fit.spec.target
-    return DynamicSetup(fit, fit.predict(train), fit.predict(test), target_channel(train, tgt),
+    pred_train = fit.pred_train_Nm if fit.pred_train_Nm is not None else fit.predict(train)
+    return DynamicSetup(fit, pred_train, fit.predict(test), target_channel(train, tgt),
                         target_channel(test, tgt), excluded_signals(train, tgt, fit.spec.driving))
 
 
