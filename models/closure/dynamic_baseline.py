@@ -38,9 +38,9 @@ from scipy.optimize import least_squares
 
 from capstan.models.closure.effects import shift_within_runs
 from capstan.models.closure.identification import fit_elastic, sandwich_cov
-from capstan.models.closure.projected_lm import projected_lm
+from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure.signals import Signals, derivative
-from capstan.models.closure.windows import WARM_START_SAMPLES, window_index
+from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
 from capstan.models.transmission.stick_slip import simulate_unit
 
@@ -334,13 +334,13 @@ def _target(sig: Signals, spec: FormSpec) -> np.ndarray:
 
 
 def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_NFEV,
-                warm_start_samples: int = WARM_START_SAMPLES) -> DynamicFit:
+                warm_start_samples: int | None = None) -> DynamicFit:
     """Fit the dynamic baseline to the training runs ``sig`` (every sample).
 
-    Up to ``warm_start_samples`` samples: bounded least squares (scipy, trust region
-    reflective) from the data-derived start. Longer runs: the same fit on contiguous windows
+    Up to ``warm_start_samples`` (default ``windows.WARM_START_SAMPLES``) samples: bounded
+    least squares (scipy, trust region reflective) from the data-derived start. Longer runs: the same fit on contiguous windows
     (:mod:`capstan.models.closure.windows`), then ``FINAL_ITERS`` bounded Levenberg-Marquardt
-    steps on every sample (:mod:`capstan.models.closure.projected_lm`); the parameters and
+    steps on every sample (:mod:`capstan.models.common.projected_lm`); the parameters and
     the training RMSE are those on every sample, the covariance is the sandwich of the
     every-sample Jacobian of the last step (at its start: the step from a warm start is small).
 
@@ -369,9 +369,9 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
 
     x0 = np.clip(p0[free], lo[free], hi[free])
     scale = np.maximum(np.abs(x0), 1e-3 * v95)
-    if len(sig) > warm_start_samples:
+    if len(sig) > (windows.WARM_START_SAMPLES if warm_start_samples is None else warm_start_samples):
         # long runs: solved on contiguous windows first, finished on every sample
-        warm = fit_dynamic(sig.take(window_index(sig)), spec, max_nfev, warm_start_samples=len(sig))
+        warm = fit_dynamic(sig.take(windows.window_index(sig)), spec, max_nfev, warm_start_samples=len(sig))
         xw = np.clip(_vector(form, warm.params)[free], lo[free], hi[free])
         lm = projected_lm(resid, xw, lo[free], hi[free], scale, FINAL_ITERS, DIFF_STEP, want_jac=True,
                           final_jac=False)

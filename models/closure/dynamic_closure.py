@@ -11,7 +11,8 @@ bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechani
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -20,9 +21,11 @@ from capstan.models.closure.dynamic_baseline import DynamicFit, fit_dynamic
 from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit, Refs, catalogue
 from capstan.models.closure.effects import Target
 from capstan.models.closure.exclusion import excluded_signals
+from capstan.models.closure.long_run_effects import LongRunCloser
 from capstan.models.closure.residual_trace import hat_basis, knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
+from capstan.models.closure import windows
 
 
 @dataclass
@@ -39,6 +42,8 @@ class DynamicSetup:
     y_train_Nm: np.ndarray
     y_test_Nm: np.ndarray
     excluded: dict[str, str]
+    #: wall time of the stages run on this setup [s] (``trace``)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
 
 
@@ -72,6 +77,8 @@ N_BOOT_DYN = 2000
 N_EMPIRICAL = 6
 #: knots of the trace's curves
 TRACE_KNOTS = 12
+#: rows per block of the trace's normal equations
+TRACE_BLOCK_ROWS = 262_144
 
 Progress = Callable[[int, int, str], None]
 
@@ -109,16 +116,25 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
         if kn is None:
             continue
 
-        def design(sig: Signals, xs: np.ndarray) -> np.ndarray:
-            H = hat_basis(xs, kn)
-            s = np.tanh(sig.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+        def design(sig: Signals, xs: np.ndarray, a: int, b: int, kn: np.ndarray = kn) -> np.ndarray:
+            H = hat_basis(xs[a:b], kn)
+            s = np.tanh(sig.dq_out_rad_s[a:b] / (2.0 * train.v_rest_rad_s))
             return np.hstack([H, s[:, None] * H])
 
-        X = design(train, x)
-        G = X.T @ X
+        # normal equations accumulated over blocks of rows (no n x 2k design of a long run)
+        G = np.zeros((2 * kn.size, 2 * kn.size))
+        g = np.zeros(2 * kn.size)
+        for a in range(0, len(train), TRACE_BLOCK_ROWS):
+            X = design(train, x, a, a + TRACE_BLOCK_ROWS)
+            G += X.T @ X
+            g += X.T @ r_tr[a:a + TRACE_BLOCK_ROWS]
         G[np.diag_indices_from(G)] += 1e-6 * max(float(np.trace(G)) / G.shape[0], 1e-12)
-        coef = np.linalg.solve(G, X.T @ r_tr)
-        imp = 1.0 - _rmse(r_te - design(test, xt) @ coef) / base if base > 0 else 0.0
+        coef = np.linalg.solve(G, g)
+        sse = 0.0
+        for a in range(0, len(test), TRACE_BLOCK_ROWS):
+            e = r_te[a:a + TRACE_BLOCK_ROWS] - design(test, xt, a, a + TRACE_BLOCK_ROWS) @ coef
+            sse += float(np.dot(e, e))
+        imp = 1.0 - math.sqrt(sse / len(test)) / base if base > 0 else 0.0
         out.append({"signal": name, "explained": max(0.0, 1.0 - (1.0 - imp) ** 2), "improvement": float(imp),
                     "significant": False})
     out.sort(key=lambda d: -d["improvement"])
@@ -133,9 +149,13 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
     """
     fit = ds.fit
     closer = InModelCloser(fit, train, test)
+    # long runs: candidates screened on training windows, the winner refitted on every sample
+    long_run = LongRunCloser(closer) if len(train) > windows.WARM_START_SAMPLES else None
     refs = Refs(float(np.mean(train.q_out_rad)), max(0.5 * float(np.ptp(train.q_out_rad)), 1e-6),
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
+    t0 = time.perf_counter()
     trace = residual_trace(ds, train, test)
+    ds.timings_s["trace"] = time.perf_counter() - t0
     emp = [d["signal"] for d in trace][:N_EMPIRICAL]
     remaining = catalogue(train, refs, ds.excluded, emp)
     labels = test_blocks(test)
@@ -154,18 +174,38 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             step += 1
             if progress:
                 progress(step, max(total, step), f"round {rnd}: {eff.name}")
-            shape = closer.best_shape(current, eff)
-            jf = closer.refit(current, eff, shape, base_free=False)
-            pt = closer.predict(jf)
+            if long_run is not None:
+                shape, jf = long_run.candidate(current, eff)
+            else:
+                shape = closer.best_shape(current, eff)
+                jf = closer.refit(current, eff, shape, base_free=False)
+            screened: tuple[float, np.ndarray] | None = None
+            if long_run is not None:
+                pt_full, imp_w = long_run.held_out(current, jf)
+                if pt_full is None:      # screened out on the held-out windows
+                    screened = (imp_w, long_run.win.yt - long_run.win.predict(jf, test=True))
+                pt = pt_full if pt_full is not None else pred_t
+            else:
+                pt = closer.predict(jf)
             r_after = yt - pt
-            # Bonferroni over the round's candidates: with every signal tried as an empirical
-            # curve, 5 % per candidate would let one of them through on clean data by chance
-            imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN, alpha=ALPHA / len(remaining))
             coef = jf.effects[-1][2]
             tau_fc = float(jf.base[names.index("tau_fc_Nm")])
-            cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
-                             _named(eff, shape, coef, tau_fc, refs), _rmse(r_after), float(np.max(np.abs(r_after))),
-                             imp, lo, bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
+            if screened is None:
+                # Bonferroni over the round's candidates: with every signal tried as an empirical
+                # curve, 5 % per candidate would let one of them through on clean data by chance
+                imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN,
+                                          alpha=ALPHA / len(remaining))
+                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                                 _named(eff, shape, coef, tau_fc, refs), _rmse(r_after),
+                                 float(np.max(np.abs(r_after))), imp, lo,
+                                 bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
+                cand.held_out_samples = len(r_after)
+            else:
+                imp_w, r_w = screened
+                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                                 _named(eff, shape, coef, tau_fc, refs), _rmse(r_w), float(np.max(np.abs(r_w))),
+                                 imp_w, math.nan, False)
+                cand.held_out_samples = len(r_w)
             cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)
@@ -181,11 +221,14 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement) else best_emp
         assert win is not None
         res.selected.append(win)
-        _, _, weff, wshape = fits[id(win)]
+        wjf, _, weff, wshape = fits[id(win)]
         # the selected effect refitted jointly with the baseline's parameters (kept where the
         # joint fit does not lower the training error: refit returns the held fit then)
         prev = JointFit(current.base, list(current.effects))
-        current = closer.refit(prev, weff, wshape, base_free=True)
+        if long_run is not None:
+            current = long_run.joint(prev, weff, wshape, wjf.effects[-1][2])
+        else:
+            current = closer.refit(prev, weff, wshape, base_free=True)
         win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)
         pred_t = closer.predict(current)
         res.params_after = {n: float(v) for n, v in zip(names, current.base)}

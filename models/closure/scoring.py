@@ -44,12 +44,17 @@ class Candidate:
     description: dict | None = None
     #: the augmented model's baseline parameters refitted with this candidate (friction path)
     baseline_params: dict[str, float] | None = None
+    #: held-out samples the scores are computed on (0: not recorded; fewer than the held-out
+    #: runs carry: screened out on held-out windows, see long_run_effects)
+    held_out_samples: int = 0
 
     def summary(self) -> dict:
         """JSON-able summary."""
         d = {"effect": self.effect, "depends_on": list(self.depends_on), "target": self.target.name.lower(),
              "round": self.round, "rmse_Nm": self.rmse_Nm, "max_err_Nm": self.max_err_Nm,
              "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
+        if self.held_out_samples:
+            d["held_out_samples"] = self.held_out_samples
         if self.description:
             d["description"] = self.description["text"]
         return d

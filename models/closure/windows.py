@@ -3,7 +3,7 @@
 On long runs (more than ``WARM_START_SAMPLES`` training samples, e.g. an hour at 1 kHz) a
 fit is first solved on a few contiguous windows spread through every run (``WINDOW_S``
 long, ``WINDOW_SAMPLES`` in all), then finished on every sample from there
-(:mod:`capstan.models.closure.projected_lm`); what is reported is the fit on every sample.
+(:mod:`capstan.models.common.projected_lm`); what is reported is the fit on every sample.
 Windows keep their run's id, so each run's time and dwell signals stay those of the run;
 the simulation restarts from the measured state at each window (a gap in time inside a
 run: ``dynamic_baseline.RESTART_GAP_S``), as at the start of a run.
@@ -23,13 +23,16 @@ WINDOW_SAMPLES = 80_000
 WINDOW_S = 20.0
 
 
-def window_index(sig: Signals, max_samples: int = WINDOW_SAMPLES, window_s: float = WINDOW_S) -> np.ndarray:
+def window_index(sig: Signals, max_samples: int | None = None, window_s: float | None = None) -> np.ndarray:
     """Indices of contiguous windows spread evenly through every run of ``sig``: at most
-    about ``max_samples`` in all, each run's share proportional to its length, the first
-    window at the run's start. All indices when ``sig`` is not longer than ``max_samples``.
+    about ``max_samples`` (default ``WINDOW_SAMPLES``) in all, each run's share proportional
+    to its length, windows ``window_s`` (default ``WINDOW_S``) long, the first at the run's
+    start. All indices when ``sig`` is not longer than ``max_samples``.
 
     :raises ValueError: if ``max_samples`` or ``window_s`` is not positive.
     """
+    max_samples = WINDOW_SAMPLES if max_samples is None else max_samples
+    window_s = WINDOW_S if window_s is None else window_s
     if max_samples <= 0 or not window_s > 0.0:
         raise ValueError(f"window_index: max_samples {max_samples} and window_s {window_s} must be > 0")
     n = len(sig)

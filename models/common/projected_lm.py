@@ -10,8 +10,10 @@ Jacobian after the final step whether or not anybody needs it. This driver
   one simulation per column, the columns on a thread pool (the
   simulation kernel releases the GIL: ``nogil``);
 * solves the damped normal equations ``(A + lam diag(A)) d = -g`` in the scaled variables
-  (``A = J^T J``, ``g = J^T r``; a few parameters, so ``p x p``) and projects the step onto
-  the bounds; a step is kept only if it lowers the sum of squares, otherwise ``lam`` grows;
+  (``A = J^T J``, ``g = J^T r``; a few parameters, so ``p x p``) for the parameters not held
+  on a bound (one is held where its descent direction leaves the domain) and projects the
+  step onto the bounds; a step is kept only if it lowers the sum of squares, otherwise
+  ``lam`` grows;
 * stops after ``n_iter`` accepted steps (the caller starts it near the optimum, from a fit
   on a part of the data); a Jacobian for the parameter covariance is the last one computed,
   or one at the final point when asked (``final_jac``).
@@ -65,13 +67,17 @@ class LMResult:
         return 0.5 * float(np.dot(self.r, self.r))
 
 
-def fd_steps(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, diff_step: float) -> np.ndarray:
+def fd_steps(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, diff_step: float,
+             abs_step: np.ndarray | None = None) -> np.ndarray:
     """Forward-difference steps as scipy's ``'2-point'`` scheme with relative step
     ``diff_step``: ``diff_step * sign(x) * |x|`` (``sqrt(eps) * max(1, |x|)`` where that is 0),
-    negated where ``x + h`` leaves ``[lo, hi]`` and ``-h`` fits, else towards the farther bound."""
+    or ``abs_step`` where given and finite; negated where ``x + h`` leaves ``[lo, hi]`` and
+    ``-h`` fits, else towards the farther bound."""
     sign = np.where(x >= 0.0, 1.0, -1.0)
     h = diff_step * sign * np.abs(x)
     h = np.where((x + h) - x == 0.0, np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x)), h)
+    if abs_step is not None:
+        h = np.where(np.isfinite(abs_step), sign * np.abs(abs_step), h)
     lower, upper = x - lo, hi - x
     violated = (x + h < lo) | (x + h > hi)
     fitting = np.abs(h) <= np.maximum(lower, upper)
@@ -82,12 +88,12 @@ def fd_steps(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, diff_step: float) ->
 
 
 def fd_jacobian(fun: Residual, x: np.ndarray, r0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                diff_step: float, n_threads: int = N_THREADS) -> np.ndarray:
+                diff_step: float, n_threads: int = N_THREADS, abs_step: np.ndarray | None = None) -> np.ndarray:
     """Forward-difference Jacobian of ``fun`` at ``x`` (``r0 = fun(x)``), columns in parallel.
 
     :raises ModelError: if a column is not finite; whatever ``fun`` raises.
     """
-    h = fd_steps(x, lo, hi, diff_step)
+    h = fd_steps(x, lo, hi, diff_step, abs_step)
     J = np.empty((r0.shape[0], x.shape[0]), order="F")
 
     def column(j: int) -> None:
@@ -110,20 +116,26 @@ def fd_jacobian(fun: Residual, x: np.ndarray, r0: np.ndarray, lo: np.ndarray, hi
 
 def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, x_scale: np.ndarray,
                  n_iter: int, diff_step: float, want_jac: bool = False, final_jac: bool = True,
-                 n_threads: int = N_THREADS) -> LMResult:
+                 n_threads: int = N_THREADS, abs_step: np.ndarray | None = None,
+                 r0: np.ndarray | None = None) -> LMResult:
     """Bounded Levenberg-Marquardt from ``x0`` (see the module docstring).
 
     :param fun: residual vector of the parameters (one simulation per call).
     :param x_scale: characteristic size of each parameter (the steps are solved in ``x / x_scale``).
     :param n_iter: accepted steps at most (each costs ``len(x0)`` + 1..``MAX_TRIALS`` evaluations).
+    :param abs_step: absolute difference steps per parameter (NaN: relative ``diff_step``);
+        for coefficients that start at 0, where a relative step is no step.
+    :param r0: ``fun(x0)`` when the caller has it (used if ``x0`` is inside the bounds).
     :param want_jac: return a Jacobian: the one at the final point when ``final_jac``
         (``len(x0)`` more evaluations after an accepted step), else the last one computed
         (at the point before the last step; :attr:`LMResult.jac_at_x` says which).
     :raises ModelError: if the residual at the start is not finite.
     """
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
-    r = fun(x)
-    nfev = 1
+    if r0 is not None and np.array_equal(x, x0):
+        r, nfev = r0, 0
+    else:
+        r, nfev = fun(x), 1
     if not np.all(np.isfinite(r)):
         raise ModelError("projected LM: the residual at the start is not finite")
     sse = float(np.dot(r, r))
@@ -132,17 +144,21 @@ def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     J: np.ndarray | None = None
     jac_at_x = False
     for _ in range(n_iter):
-        J = fd_jacobian(fun, x, r, lo, hi, diff_step, n_threads)
+        J = fd_jacobian(fun, x, r, lo, hi, diff_step, n_threads, abs_step)
         nfev += x.size
         jac_at_x = True
         Js = J * x_scale
         A = Js.T @ Js
         g = Js.T @ r
         dA = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
+        # active set: a parameter on a bound whose descent direction leaves the domain is held
+        free = ~(((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0)))
         moved = False
         for _trial in range(MAX_TRIALS):
+            d = np.zeros_like(x)
             try:
-                d = np.linalg.solve(A + lam * np.diag(dA), -g)
+                Af = A[np.ix_(free, free)] + lam * np.diag(dA[free])
+                d[free] = np.linalg.solve(Af, -g[free])
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
@@ -162,7 +178,7 @@ def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
         accepted += 1
         jac_at_x = False
     if want_jac and (J is None or (final_jac and not jac_at_x)):
-        J = fd_jacobian(fun, x, r, lo, hi, diff_step, n_threads)
+        J = fd_jacobian(fun, x, r, lo, hi, diff_step, n_threads, abs_step)
         nfev += x.size
         jac_at_x = True
     return LMResult(x, r, J if want_jac else None, nfev, accepted, jac_at_x and want_jac)

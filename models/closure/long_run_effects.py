@@ -1,0 +1,158 @@
+"""In-model candidates on long runs (more than ``windows.WARM_START_SAMPLES`` training
+samples, e.g. an hour at 1 kHz).
+
+The search of :class:`capstan.models.closure.dynamic_effects.InModelCloser` (each shape of a
+candidate's grid by Powell's method, the baseline held: hundreds of simulations per
+candidate) costs minutes on millions of samples. On long runs instead:
+
+1. *screen* -- each candidate's coefficients, for every shape of its grid, by one bounded
+   Levenberg-Marquardt step from zero (:mod:`capstan.models.common.projected_lm`; difference
+   steps of ``COEF_STEP`` of the capacity or drive scale, where a stick-slip output error is
+   smooth enough to be linearised), the baseline and the effects already selected held, on
+   the training windows (:mod:`capstan.models.closure.windows`); the shape with the lowest
+   windowed training error is the candidate's;
+2. it is scored on held-out windows first; where it lowers their RMSE by at least
+   ``SCREEN_HELD_OUT`` (half the materiality) the caller scores it on every held-out sample,
+   as for short runs, otherwise it is reported as screened out with the windows' figure;
+3. *joint refit* of the winner with the baseline's free parameters: Levenberg-Marquardt on
+   the windows from the screened coefficients, then ``JOINT_FINAL_ITERS`` step(s) on every
+   training sample; the joint fit is kept only where it lowers the every-sample training
+   error below that of the effect with the baseline held (the rule of ``refit``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from capstan.models.closure.dynamic_baseline import DIFF_STEP, _predict, _velocity_scale
+from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit
+from capstan.models.closure.effects import shift_within_runs
+from capstan.models.common.projected_lm import projected_lm
+from capstan.models.closure import windows
+
+#: difference step of a dimensionless effect coefficient (a share of the friction capacity
+#: or of the drive scale); the drag coefficient's is the drag giving that share at the
+#: run's 95th-percentile speed
+COEF_STEP = 0.05
+#: Levenberg-Marquardt steps of the screen (per shape), of the joint refit on the windows,
+#: and of the joint refit on every sample
+SCREEN_ITERS = 1
+JOINT_WINDOW_ITERS = 3
+JOINT_FINAL_ITERS = 1
+#: a candidate is scored on every held-out sample when it improves the held-out windows by this
+SCREEN_HELD_OUT = 0.025
+
+
+class LongRunCloser:
+    """Screening and joint refits of in-model candidates on long runs (module docstring).
+
+    :param closer: the closer on every sample of the training and held-out runs.
+    :param max_samples: samples of the training windows (default ``windows.WINDOW_SAMPLES``;
+        the held-out windows get half as many).
+    :raises ModelError: if the runs carry no motion.
+    """
+
+    def __init__(self, closer: InModelCloser, max_samples: int | None = None) -> None:
+        self.closer = closer
+        m = windows.WINDOW_SAMPLES if max_samples is None else max_samples
+        self.test_idx = windows.window_index(closer.test, max(2, m // 2))
+        self.win = InModelCloser(closer.dyn, closer.train.take(windows.window_index(closer.train, m)),
+                                 closer.test.take(self.test_idx))
+        v95 = _velocity_scale(closer.train, closer.form)
+        tau_fc = max(float(closer.dyn.params.get("tau_fc_Nm", 0.0)), 1e-6)
+        self._c2_step = COEF_STEP * tau_fc / (v95 * v95)
+        self._round: tuple[JointFit, np.ndarray, np.ndarray, np.ndarray, float] | None = None
+
+    def _current(self, current: JointFit) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """(training-window residual, its prediction without the current lag, held-out-window
+        residual, the current lag [s]) of the current model, simulated once per round."""
+        if self._round is None or self._round[0] is not current:
+            cl = self.win
+            mods = current.mods(cl.train)
+            lag = mods.lag_s
+            mods.lag_s = 0.0
+            p_nolag = _predict(cl.form, current.base, cl.train, cl.dyn.declared_env, mods)[0]
+            r_tr = shift_within_runs(p_nolag, cl.train, lag) - cl.y
+            r_te = cl.predict(current, test=True) - cl.yt
+            self._round = (current, r_tr, p_nolag, r_te, lag)
+        return self._round[1], self._round[2], self._round[3], self._round[4]
+
+    def held_out(self, current: JointFit, jf: JointFit) -> tuple[np.ndarray | None, float]:
+        """(``jf``'s prediction on every held-out sample, or None when it is screened out; its
+        improvement on the held-out windows): screened out below ``SCREEN_HELD_OUT``.
+
+        :raises ModelError: if a simulation fails.
+        """
+        _, _, r_before, _ = self._current(current)
+        r_after = self.win.predict(jf, test=True) - self.win.yt
+        den = float(np.dot(r_before, r_before))
+        imp = 1.0 - math.sqrt(float(np.dot(r_after, r_after)) / den) if den > 0.0 else 0.0
+        if imp < SCREEN_HELD_OUT:
+            return None, imp
+        return self.closer.predict(jf, test=True), imp
+
+    def _steps(self, eff: InModelEffect) -> np.ndarray:
+        return np.array([self._c2_step if n.startswith("C2") else COEF_STEP for n in eff.coef_names])
+
+    def candidate(self, current: JointFit, eff: InModelEffect) -> tuple[dict, JointFit]:
+        """(shape, fit) of ``eff`` on the training windows, the current model held.
+
+        :raises ModelError: if a simulation fails.
+        """
+        cl = self.win
+        k = len(eff.coef_names)
+        steps = self._steps(eff)
+        lo, hi = np.array(eff.lo, float), np.array(eff.hi, float)
+        r0, p_nolag, _, lag0 = self._current(current)
+        best: tuple[float, dict, JointFit] | None = None
+        for sh in eff.grid:
+            def model(c: np.ndarray, sh: dict = sh) -> JointFit:
+                return JointFit(current.base, list(current.effects) + [(eff, sh, c)])
+
+            def resid(c: np.ndarray, model=model) -> np.ndarray:
+                return cl.predict(model(c), test=False) - cl.y
+
+            if k == 0:     # a lag only moves the prediction: no simulation
+                jf = model(np.zeros(0))
+                r = shift_within_runs(p_nolag, cl.train, lag0 + jf.effects[-1][0].mods(cl.train, sh, np.zeros(0)).lag_s) - cl.y
+                sse = float(np.dot(r, r))
+            else:
+                res = projected_lm(resid, np.zeros(k), lo, hi, steps, SCREEN_ITERS, DIFF_STEP, abs_step=steps,
+                                   r0=r0)
+                jf, sse = model(res.x), 2.0 * res.cost
+            if best is None or sse < best[0]:
+                best = (sse, sh, jf)
+        assert best is not None
+        return best[1], best[2]
+
+    def joint(self, current: JointFit, eff: InModelEffect, shape: dict, coef: np.ndarray) -> JointFit:
+        """``eff`` at ``shape`` refitted with the baseline's free parameters (windows, then
+        every training sample), or with the baseline held where that fits better.
+
+        :raises ModelError: if a simulation fails.
+        """
+        full = self.closer
+        held = JointFit(current.base, list(current.effects) + [(eff, shape, np.asarray(coef, float))])
+        pf0 = current.base[full.free]
+        nb = pf0.size
+        x0 = np.concatenate([pf0, coef])
+        lo = np.concatenate([full.lo, np.array(eff.lo, float)])
+        hi = np.concatenate([full.hi, np.array(eff.hi, float)])
+        steps = 0.2 * self._steps(eff)
+        scale = np.concatenate([np.maximum(np.abs(pf0), 1e-6), np.maximum(steps, np.abs(coef))])
+        abs_step = np.concatenate([np.full(nb, np.nan), steps])
+
+        def model(cl: InModelCloser, x: np.ndarray) -> JointFit:
+            return JointFit(cl._full(x[:nb]), list(current.effects) + [(eff, shape, x[nb:])])
+
+        def resid_on(cl: InModelCloser):
+            return lambda x: cl.predict(model(cl, x), test=False) - cl.y
+
+        w = projected_lm(resid_on(self.win), x0, lo, hi, scale, JOINT_WINDOW_ITERS, DIFF_STEP, abs_step=abs_step)
+        f = projected_lm(resid_on(full), w.x, lo, hi, scale, JOINT_FINAL_ITERS, DIFF_STEP, abs_step=abs_step)
+        r_h = full.predict(held, test=False) - full.y
+        if float(np.dot(r_h, r_h)) <= 2.0 * f.cost:
+            return held
+        return model(full, f.x)
