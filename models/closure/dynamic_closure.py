@@ -22,7 +22,7 @@ from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect,
 from capstan.models.closure.effects import Target
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.long_run_effects import LongRunCloser
-from capstan.models.closure.residual_trace import hat_basis, knots_for
+from capstan.models.closure.residual_trace import knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
@@ -99,6 +99,34 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
     return {}
 
 
+def _trace_rows(x: np.ndarray, s: np.ndarray, kn: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Column indices and values of the trace design's four non-zeros per row: the hat basis
+    of ``x`` over ``kn`` (as :func:`hat_basis`: two neighbouring knots), as is and times ``s``."""
+    k = kn.shape[0]
+    xc = np.clip(x, kn[0], kn[-1])
+    j = np.clip(np.searchsorted(kn, xc, side="right") - 1, 0, k - 2)
+    w = (xc - kn[j]) / np.maximum(kn[j + 1] - kn[j], 1e-300)
+    return [j, j + 1, k + j, k + j + 1], [1.0 - w, w, s * (1.0 - w), s * w]
+
+
+def _trace_normal_equations(x: np.ndarray, s: np.ndarray, r: np.ndarray, kn: np.ndarray,
+                            G: np.ndarray, g: np.ndarray) -> None:
+    """Add ``X^T X`` and ``X^T r`` of the trace design of these rows to ``G``, ``g`` (the design
+    has four non-zeros per row: accumulated by index, no ``n x 2k`` matrix)."""
+    k2 = G.shape[0]
+    idx, val = _trace_rows(x, s, kn)
+    for ia, va in zip(idx, val):
+        g += np.bincount(ia, va * r, minlength=k2)
+        for ib, vb in zip(idx, val):
+            G += np.bincount(ia * k2 + ib, va * vb, minlength=k2 * k2).reshape(k2, k2)
+
+
+def _trace_curve(x: np.ndarray, s: np.ndarray, kn: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """The trace design of these rows times ``coef``."""
+    idx, val = _trace_rows(x, s, kn)
+    return sum(v * coef[i] for i, v in zip(idx, val))
+
+
 def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict]:
     """How much of the dynamic residual each candidate signal explains: a piecewise-linear
     curve of the signal, additive and friction-like (times tanh(dq / 2 v_rest)), fitted on
@@ -116,23 +144,20 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
         if kn is None:
             continue
 
-        def design(sig: Signals, xs: np.ndarray, a: int, b: int, kn: np.ndarray = kn) -> np.ndarray:
-            H = hat_basis(xs[a:b], kn)
-            s = np.tanh(sig.dq_out_rad_s[a:b] / (2.0 * train.v_rest_rad_s))
-            return np.hstack([H, s[:, None] * H])
-
-        # normal equations accumulated over blocks of rows (no n x 2k design of a long run)
-        G = np.zeros((2 * kn.size, 2 * kn.size))
-        g = np.zeros(2 * kn.size)
+        k2 = 2 * kn.size
+        s_tr = np.tanh(train.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+        s_te = np.tanh(test.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+        G = np.zeros((k2, k2))
+        g = np.zeros(k2)
         for a in range(0, len(train), TRACE_BLOCK_ROWS):
-            X = design(train, x, a, a + TRACE_BLOCK_ROWS)
-            G += X.T @ X
-            g += X.T @ r_tr[a:a + TRACE_BLOCK_ROWS]
+            b = a + TRACE_BLOCK_ROWS
+            _trace_normal_equations(x[a:b], s_tr[a:b], r_tr[a:b], kn, G, g)
         G[np.diag_indices_from(G)] += 1e-6 * max(float(np.trace(G)) / G.shape[0], 1e-12)
         coef = np.linalg.solve(G, g)
         sse = 0.0
         for a in range(0, len(test), TRACE_BLOCK_ROWS):
-            e = r_te[a:a + TRACE_BLOCK_ROWS] - design(test, xt, a, a + TRACE_BLOCK_ROWS) @ coef
+            b = a + TRACE_BLOCK_ROWS
+            e = r_te[a:b] - _trace_curve(xt[a:b], s_te[a:b], kn, coef)
             sse += float(np.dot(e, e))
         imp = 1.0 - math.sqrt(sse / len(test)) / base if base > 0 else 0.0
         out.append({"signal": name, "explained": max(0.0, 1.0 - (1.0 - imp) ** 2), "improvement": float(imp),

@@ -49,16 +49,17 @@ class LongRunCloser:
     """Screening and joint refits of in-model candidates on long runs (module docstring).
 
     :param closer: the closer on every sample of the training and held-out runs.
-    :param max_samples: samples of the training windows (default ``windows.WINDOW_SAMPLES``;
+    :param max_samples: samples of the training windows (default ``windows.SCREEN_SAMPLES``;
         the held-out windows get half as many).
     :raises ModelError: if the runs carry no motion.
     """
 
     def __init__(self, closer: InModelCloser, max_samples: int | None = None) -> None:
         self.closer = closer
-        m = windows.WINDOW_SAMPLES if max_samples is None else max_samples
-        self.test_idx = windows.window_index(closer.test, max(2, m // 2))
-        self.win = InModelCloser(closer.dyn, closer.train.take(windows.window_index(closer.train, m)),
+        m = windows.SCREEN_SAMPLES if max_samples is None else max_samples
+        ws = windows.SCREEN_WINDOW_S
+        self.test_idx = windows.window_index(closer.test, max(2, m // 2), ws)
+        self.win = InModelCloser(closer.dyn, closer.train.take(windows.window_index(closer.train, m, ws)),
                                  closer.test.take(self.test_idx))
         v95 = _velocity_scale(closer.train, closer.form)
         tau_fc = max(float(closer.dyn.params.get("tau_fc_Nm", 0.0)), 1e-6)

@@ -21,6 +21,9 @@ WARM_START_SAMPLES = 300_000
 WINDOW_SAMPLES = 80_000
 #: length of one window [s]
 WINDOW_S = 20.0
+#: samples and window length of the in-model candidates' screen (long_run_effects)
+SCREEN_SAMPLES = 40_000
+SCREEN_WINDOW_S = 10.0
 
 
 def window_index(sig: Signals, max_samples: int | None = None, window_s: float | None = None) -> np.ndarray:
