@@ -42,7 +42,8 @@ class DynamicSetup:
     y_train_Nm: np.ndarray
     y_test_Nm: np.ndarray
     excluded: dict[str, str]
-    #: wall time of the stages run on this setup [s] (``trace``)
+    #: wall time of the stages run on this setup [s] (``trace``; long runs: ``screen``,
+    #: ``held-out``, ``joint`` inside the candidates' time)
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -115,10 +116,12 @@ def _trace_normal_equations(x: np.ndarray, s: np.ndarray, r: np.ndarray, kn: np.
     has four non-zeros per row: accumulated by index, no ``n x 2k`` matrix)."""
     k2 = G.shape[0]
     idx, val = _trace_rows(x, s, kn)
-    for ia, va in zip(idx, val):
+    acc = np.zeros((k2, k2))
+    for a, (ia, va) in enumerate(zip(idx, val)):
         g += np.bincount(ia, va * r, minlength=k2)
-        for ib, vb in zip(idx, val):
-            G += np.bincount(ia * k2 + ib, va * vb, minlength=k2 * k2).reshape(k2, k2)
+        for ib, vb in list(zip(idx, val))[a:]:
+            acc += np.bincount(ia * k2 + ib, va * vb, minlength=k2 * k2).reshape(k2, k2)
+    G += acc + acc.T - np.diag(np.diag(acc))
 
 
 def _trace_curve(x: np.ndarray, s: np.ndarray, kn: np.ndarray, coef: np.ndarray) -> np.ndarray:
@@ -135,6 +138,8 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
     r_tr = ds.y_train_Nm - ds.pred_train_Nm
     r_te = ds.y_test_Nm - ds.pred_test_Nm
     base = _rmse(r_te)
+    s_tr = np.tanh(train.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+    s_te = np.tanh(test.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
     out = []
     for name in train.available():
         x, xt = train.signal(name), test.signal(name)
@@ -145,8 +150,6 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
             continue
 
         k2 = 2 * kn.size
-        s_tr = np.tanh(train.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
-        s_te = np.tanh(test.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
         G = np.zeros((k2, k2))
         g = np.zeros(k2)
         for a in range(0, len(train), TRACE_BLOCK_ROWS):
@@ -164,6 +167,10 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
                     "significant": False})
     out.sort(key=lambda d: -d["improvement"])
     return out
+
+
+def _tick(ds: DynamicSetup, stage: str, t0_s: float) -> None:
+    ds.timings_s[stage] = ds.timings_s.get(stage, 0.0) + time.perf_counter() - t0_s
 
 
 def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Progress | None = None,
@@ -200,13 +207,17 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             if progress:
                 progress(step, max(total, step), f"round {rnd}: {eff.name}")
             if long_run is not None:
+                t0 = time.perf_counter()
                 shape, jf = long_run.candidate(current, eff)
+                _tick(ds, "screen", t0)
             else:
                 shape = closer.best_shape(current, eff)
                 jf = closer.refit(current, eff, shape, base_free=False)
             screened: tuple[float, np.ndarray] | None = None
             if long_run is not None:
+                t0 = time.perf_counter()
                 pt_full, imp_w = long_run.held_out(current, jf)
+                _tick(ds, "held-out", t0)
                 if pt_full is None:      # screened out on the held-out windows
                     screened = (imp_w, long_run.win.yt - long_run.win.predict(jf, test=True))
                 pt = pt_full if pt_full is not None else pred_t
@@ -251,7 +262,9 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         # joint fit does not lower the training error: refit returns the held fit then)
         prev = JointFit(current.base, list(current.effects))
         if long_run is not None:
+            t0 = time.perf_counter()
             current = long_run.joint(prev, weff, wshape, wjf.effects[-1][2])
+            _tick(ds, "joint", t0)
         else:
             current = closer.refit(prev, weff, wshape, base_free=True)
         win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)

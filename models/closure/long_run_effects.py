@@ -41,6 +41,8 @@ COEF_STEP = 0.05
 SCREEN_ITERS = 1
 JOINT_WINDOW_ITERS = 3
 JOINT_FINAL_ITERS = 1
+#: damping trials of a screening step (each one simulation of the windows)
+SCREEN_TRIALS = 2
 #: a candidate is scored on every held-out sample when it improves the held-out windows by this
 SCREEN_HELD_OUT = 0.025
 
@@ -121,7 +123,7 @@ class LongRunCloser:
                 sse = float(np.dot(r, r))
             else:
                 res = projected_lm(resid, np.zeros(k), lo, hi, steps, SCREEN_ITERS, DIFF_STEP, abs_step=steps,
-                                   r0=r0)
+                                   r0=r0, max_trials=SCREEN_TRIALS)
                 jf, sse = model(res.x), 2.0 * res.cost
             if best is None or sse < best[0]:
                 best = (sse, sh, jf)

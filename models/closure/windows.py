@@ -18,9 +18,9 @@ from capstan.models.closure.signals import Signals
 #: above this many training samples the fits start on windows
 WARM_START_SAMPLES = 300_000
 #: samples of all windows together
-WINDOW_SAMPLES = 80_000
+WINDOW_SAMPLES = 40_000
 #: length of one window [s]
-WINDOW_S = 20.0
+WINDOW_S = 10.0
 #: samples and window length of the in-model candidates' screen (long_run_effects)
 SCREEN_SAMPLES = 40_000
 SCREEN_WINDOW_S = 10.0

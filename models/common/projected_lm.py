@@ -117,7 +117,7 @@ def fd_jacobian(fun: Residual, x: np.ndarray, r0: np.ndarray, lo: np.ndarray, hi
 def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, x_scale: np.ndarray,
                  n_iter: int, diff_step: float, want_jac: bool = False, final_jac: bool = True,
                  n_threads: int = N_THREADS, abs_step: np.ndarray | None = None,
-                 r0: np.ndarray | None = None) -> LMResult:
+                 r0: np.ndarray | None = None, max_trials: int = MAX_TRIALS) -> LMResult:
     """Bounded Levenberg-Marquardt from ``x0`` (see the module docstring).
 
     :param fun: residual vector of the parameters (one simulation per call).
@@ -125,6 +125,7 @@ def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     :param n_iter: accepted steps at most (each costs ``len(x0)`` + 1..``MAX_TRIALS`` evaluations).
     :param abs_step: absolute difference steps per parameter (NaN: relative ``diff_step``);
         for coefficients that start at 0, where a relative step is no step.
+    :param max_trials: damping trials per iteration (each one simulation).
     :param r0: ``fun(x0)`` when the caller has it (used if ``x0`` is inside the bounds).
     :param want_jac: return a Jacobian: the one at the final point when ``final_jac``
         (``len(x0)`` more evaluations after an accepted step), else the last one computed
@@ -154,7 +155,7 @@ def projected_lm(fun: Residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
         # active set: a parameter on a bound whose descent direction leaves the domain is held
         free = ~(((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0)))
         moved = False
-        for _trial in range(MAX_TRIALS):
+        for _trial in range(max_trials):
             d = np.zeros_like(x)
             try:
                 Af = A[np.ix_(free, free)] + lam * np.diag(dA[free])
