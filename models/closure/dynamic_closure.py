@@ -21,7 +21,7 @@ from capstan.models.closure.dynamic_baseline import DynamicFit, fit_dynamic
 from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit, Refs, catalogue
 from capstan.models.closure.effects import Target
 from capstan.models.closure.exclusion import excluded_signals
-from capstan.models.closure.long_run_effects import LongRunCloser
+from capstan.models.closure.long_run_effects import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.residual_trace import knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
@@ -208,25 +208,24 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                 progress(step, max(total, step), f"round {rnd}: {eff.name}")
             if long_run is not None:
                 t0 = time.perf_counter()
-                shape, jf = long_run.candidate(current, eff)
+                shape, jf, imp_train = long_run.candidate(current, eff)
                 _tick(ds, "screen", t0)
             else:
                 shape = closer.best_shape(current, eff)
                 jf = closer.refit(current, eff, shape, base_free=False)
-            screened: tuple[float, np.ndarray] | None = None
+            screened = False
             if long_run is not None:
                 t0 = time.perf_counter()
-                pt_full, imp_w = long_run.held_out(current, jf)
+                pt_full = long_run.held_out(jf, imp_train)
                 _tick(ds, "held-out", t0)
-                if pt_full is None:      # screened out on the held-out windows
-                    screened = (imp_w, long_run.win.yt - long_run.win.predict(jf, test=True))
+                screened = pt_full is None
                 pt = pt_full if pt_full is not None else pred_t
             else:
                 pt = closer.predict(jf)
             r_after = yt - pt
             coef = jf.effects[-1][2]
             tau_fc = float(jf.base[names.index("tau_fc_Nm")])
-            if screened is None:
+            if not screened:
                 # Bonferroni over the round's candidates: with every signal tried as an empirical
                 # curve, 5 % per candidate would let one of them through on clean data by chance
                 imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN,
@@ -236,12 +235,12 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                                  float(np.max(np.abs(r_after))), imp, lo,
                                  bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
                 cand.held_out_samples = len(r_after)
-            else:
-                imp_w, r_w = screened
+            else:      # not scored: it does not help even on the training windows it was fitted on
                 cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
-                                 _named(eff, shape, coef, tau_fc, refs), _rmse(r_w), float(np.max(np.abs(r_w))),
-                                 imp_w, math.nan, False)
-                cand.held_out_samples = len(r_w)
+                                 _named(eff, shape, coef, tau_fc, refs), math.nan, math.nan, math.nan, math.nan,
+                                 False)
+                cand.screened_out = (f"screened out: {100 * imp_train:.1f} % lower RMSE on the training windows "
+                                     f"(< {100 * SCREEN_MIN:.1f} %)")
             cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)

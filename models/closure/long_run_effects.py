@@ -6,14 +6,15 @@ candidate's grid by Powell's method, the baseline held: hundreds of simulations 
 candidate) costs minutes on millions of samples. On long runs instead:
 
 1. *screen* -- each candidate's coefficients, for every shape of its grid, by one bounded
-   Levenberg-Marquardt step from zero (:mod:`capstan.models.common.projected_lm`; difference
+   Levenberg-Marquardt step from zero (``REFINE_ITERS`` more at the chosen shape when it
+   screens in) (:mod:`capstan.models.common.projected_lm`; difference
    steps of ``COEF_STEP`` of the capacity or drive scale, where a stick-slip output error is
    smooth enough to be linearised), the baseline and the effects already selected held, on
    the training windows (:mod:`capstan.models.closure.windows`); the shape with the lowest
    windowed training error is the candidate's;
-2. it is scored on held-out windows first; where it lowers their RMSE by at least
-   ``SCREEN_HELD_OUT`` (half the materiality) the caller scores it on every held-out sample,
-   as for short runs, otherwise it is reported as screened out with the windows' figure;
+2. where it lowers the training windows' RMSE by at least ``SCREEN_MIN`` (half the
+   materiality) the caller scores it on every held-out sample, as for short runs; otherwise
+   it is reported as screened out (it does not help even where it was fitted), unscored;
 3. *joint refit* of the winner with the baseline's free parameters: Levenberg-Marquardt on
    the windows from the screened coefficients, then ``JOINT_FINAL_ITERS`` step(s) on every
    training sample; the joint fit is kept only where it lowers the every-sample training
@@ -43,34 +44,34 @@ JOINT_WINDOW_ITERS = 3
 JOINT_FINAL_ITERS = 1
 #: damping trials of a screening step (each one simulation of the windows)
 SCREEN_TRIALS = 2
-#: a candidate is scored on every held-out sample when it improves the held-out windows by this
-SCREEN_HELD_OUT = 0.025
+#: Levenberg-Marquardt steps refining a candidate that screens in (at its chosen shape)
+REFINE_ITERS = 6
+#: a candidate is scored on every held-out sample when it lowers the training windows' RMSE by this
+SCREEN_MIN = 0.025
 
 
 class LongRunCloser:
     """Screening and joint refits of in-model candidates on long runs (module docstring).
 
     :param closer: the closer on every sample of the training and held-out runs.
-    :param max_samples: samples of the training windows (default ``windows.SCREEN_SAMPLES``;
-        the held-out windows get half as many).
+    :param max_samples: samples of the training windows (default ``windows.SCREEN_SAMPLES``).
     :raises ModelError: if the runs carry no motion.
     """
 
     def __init__(self, closer: InModelCloser, max_samples: int | None = None) -> None:
         self.closer = closer
         m = windows.SCREEN_SAMPLES if max_samples is None else max_samples
-        ws = windows.SCREEN_WINDOW_S
-        self.test_idx = windows.window_index(closer.test, max(2, m // 2), ws)
-        self.win = InModelCloser(closer.dyn, closer.train.take(windows.window_index(closer.train, m, ws)),
-                                 closer.test.take(self.test_idx))
+        self.win = InModelCloser(closer.dyn, closer.train.take(windows.window_index(closer.train, m,
+                                                                                    windows.SCREEN_WINDOW_S)),
+                                 closer.test)
         v95 = _velocity_scale(closer.train, closer.form)
         tau_fc = max(float(closer.dyn.params.get("tau_fc_Nm", 0.0)), 1e-6)
         self._c2_step = COEF_STEP * tau_fc / (v95 * v95)
-        self._round: tuple[JointFit, np.ndarray, np.ndarray, np.ndarray, float] | None = None
+        self._round: tuple[JointFit, np.ndarray, np.ndarray, float] | None = None
 
-    def _current(self, current: JointFit) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """(training-window residual, its prediction without the current lag, held-out-window
-        residual, the current lag [s]) of the current model, simulated once per round."""
+    def _current(self, current: JointFit) -> tuple[np.ndarray, np.ndarray, float]:
+        """(training-window residual, its prediction without the current lag, the current lag
+        [s]) of the current model, simulated once per round."""
         if self._round is None or self._round[0] is not current:
             cl = self.win
             mods = current.mods(cl.train)
@@ -78,29 +79,26 @@ class LongRunCloser:
             mods.lag_s = 0.0
             p_nolag = _predict(cl.form, current.base, cl.train, cl.dyn.declared_env, mods)[0]
             r_tr = shift_within_runs(p_nolag, cl.train, lag) - cl.y
-            r_te = cl.predict(current, test=True) - cl.yt
-            self._round = (current, r_tr, p_nolag, r_te, lag)
-        return self._round[1], self._round[2], self._round[3], self._round[4]
+            self._round = (current, r_tr, p_nolag, lag)
+        return self._round[1], self._round[2], self._round[3]
 
-    def held_out(self, current: JointFit, jf: JointFit) -> tuple[np.ndarray | None, float]:
-        """(``jf``'s prediction on every held-out sample, or None when it is screened out; its
-        improvement on the held-out windows): screened out below ``SCREEN_HELD_OUT``.
+    def held_out(self, jf: JointFit, improvement_train: float) -> np.ndarray | None:
+        """``jf``'s prediction on every held-out sample, or None when the candidate is screened
+        out: its training-window RMSE improvement (from :meth:`candidate`) is below
+        ``SCREEN_MIN`` (it does not even help where it was fitted).
 
         :raises ModelError: if a simulation fails.
         """
-        _, _, r_before, _ = self._current(current)
-        r_after = self.win.predict(jf, test=True) - self.win.yt
-        den = float(np.dot(r_before, r_before))
-        imp = 1.0 - math.sqrt(float(np.dot(r_after, r_after)) / den) if den > 0.0 else 0.0
-        if imp < SCREEN_HELD_OUT:
-            return None, imp
-        return self.closer.predict(jf, test=True), imp
+        if improvement_train < SCREEN_MIN:
+            return None
+        return self.closer.predict(jf, test=True)
 
     def _steps(self, eff: InModelEffect) -> np.ndarray:
         return np.array([self._c2_step if n.startswith("C2") else COEF_STEP for n in eff.coef_names])
 
-    def candidate(self, current: JointFit, eff: InModelEffect) -> tuple[dict, JointFit]:
-        """(shape, fit) of ``eff`` on the training windows, the current model held.
+    def candidate(self, current: JointFit, eff: InModelEffect) -> tuple[dict, JointFit, float]:
+        """(shape, fit, RMSE improvement on the training windows) of ``eff``, fitted on the
+        training windows with the current model held.
 
         :raises ModelError: if a simulation fails.
         """
@@ -108,27 +106,36 @@ class LongRunCloser:
         k = len(eff.coef_names)
         steps = self._steps(eff)
         lo, hi = np.array(eff.lo, float), np.array(eff.hi, float)
-        r0, p_nolag, _, lag0 = self._current(current)
-        best: tuple[float, dict, JointFit] | None = None
+        r0, p_nolag, lag0 = self._current(current)
+        sse0 = float(np.dot(r0, r0))
+
+        def model(c: np.ndarray, sh: dict) -> JointFit:
+            return JointFit(current.base, list(current.effects) + [(eff, sh, c)])
+
+        def resid_at(sh: dict):
+            return lambda c: cl.predict(model(c, sh), test=False) - cl.y
+
+        best: tuple[float, dict, np.ndarray, np.ndarray] | None = None
         for sh in eff.grid:
-            def model(c: np.ndarray, sh: dict = sh) -> JointFit:
-                return JointFit(current.base, list(current.effects) + [(eff, sh, c)])
-
-            def resid(c: np.ndarray, model=model) -> np.ndarray:
-                return cl.predict(model(c), test=False) - cl.y
-
             if k == 0:     # a lag only moves the prediction: no simulation
-                jf = model(np.zeros(0))
-                r = shift_within_runs(p_nolag, cl.train, lag0 + jf.effects[-1][0].mods(cl.train, sh, np.zeros(0)).lag_s) - cl.y
-                sse = float(np.dot(r, r))
+                lag = lag0 + eff.mods(cl.train, sh, np.zeros(0)).lag_s
+                c, r = np.zeros(0), shift_within_runs(p_nolag, cl.train, lag) - cl.y
             else:
-                res = projected_lm(resid, np.zeros(k), lo, hi, steps, SCREEN_ITERS, DIFF_STEP, abs_step=steps,
-                                   r0=r0, max_trials=SCREEN_TRIALS)
-                jf, sse = model(res.x), 2.0 * res.cost
+                res = projected_lm(resid_at(sh), np.zeros(k), lo, hi, steps, SCREEN_ITERS, DIFF_STEP,
+                                   abs_step=steps, r0=r0, max_trials=SCREEN_TRIALS)
+                c, r = res.x, res.r
+            sse = float(np.dot(r, r))
             if best is None or sse < best[0]:
-                best = (sse, sh, jf)
+                best = (sse, sh, c, r)
         assert best is not None
-        return best[1], best[2]
+        sse, sh, c, r = best
+        if k and sse0 > 0.0 and 1.0 - math.sqrt(sse / sse0) >= SCREEN_MIN:
+            # worth scoring: its coefficients refined at the chosen shape
+            res = projected_lm(resid_at(sh), c, lo, hi, steps, REFINE_ITERS, DIFF_STEP, abs_step=0.2 * steps,
+                               r0=r)
+            c, sse = res.x, 2.0 * res.cost
+        imp = 1.0 - math.sqrt(sse / sse0) if sse0 > 0.0 else 0.0
+        return sh, model(c, sh), imp
 
     def joint(self, current: JointFit, eff: InModelEffect, shape: dict, coef: np.ndarray) -> JointFit:
         """``eff`` at ``shape`` refitted with the baseline's free parameters (windows, then

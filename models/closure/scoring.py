@@ -44,9 +44,10 @@ class Candidate:
     description: dict | None = None
     #: the augmented model's baseline parameters refitted with this candidate (friction path)
     baseline_params: dict[str, float] | None = None
-    #: held-out samples the scores are computed on (0: not recorded; fewer than the held-out
-    #: runs carry: screened out on held-out windows, see long_run_effects)
+    #: held-out samples the scores are computed on (0: not recorded or not scored)
     held_out_samples: int = 0
+    #: why the candidate was not scored on the held-out runs (long runs), else ""
+    screened_out: str = ""
 
     def summary(self) -> dict:
         """JSON-able summary."""
@@ -55,6 +56,8 @@ class Candidate:
              "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
         if self.held_out_samples:
             d["held_out_samples"] = self.held_out_samples
+        if self.screened_out:
+            d["screened_out"] = self.screened_out
         if self.description:
             d["description"] = self.description["text"]
         return d
