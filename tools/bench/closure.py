@@ -126,6 +126,9 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{len(r['total'])}; {stages} s)  one simulation {1e3 * r['simulation']:7.1f} ms "
               f"({1e9 * r['simulation'] / r['samples']:5.1f} ns/sample)  peak RSS {r['rss_MB']:7.0f} MB  "
               f"held-out RMSE {r['rmse'][0]:.4f} -> {r['rmse'][1]:.4f} Nm  selected {r['selected']}", flush=True)
+    for r in rows:
+        print(f"{r['minutes']:g} min: the closure costs {r['median_total'] / r['simulation']:.0f} simulations of the "
+              "whole run (a figure the machine's load does not change much)")
     r0 = rows[0]
     for r in rows[1:]:
         print(f"{r['minutes']:g} min vs {r0['minutes']:g} min: samples x{r['samples'] / r0['samples']:.1f}, "
