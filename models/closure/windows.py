@@ -16,7 +16,7 @@ import numpy as np
 from capstan.models.closure.signals import Signals
 
 #: above this many training samples the fits start on windows
-WARM_START_SAMPLES = 300_000
+WARM_START_SAMPLES = 100_000
 #: samples of all windows together
 WINDOW_SAMPLES = 40_000
 #: length of one window [s]
