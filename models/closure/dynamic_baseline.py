@@ -38,7 +38,9 @@ from scipy.optimize import least_squares
 
 from capstan.models.closure.effects import shift_within_runs
 from capstan.models.closure.identification import fit_elastic, sandwich_cov
+from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure.signals import Signals, derivative
+from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
 from capstan.models.transmission.stick_slip import simulate_unit
 
@@ -55,6 +57,10 @@ ZETA_S0 = 1.05
 #: relative finite-difference step of the Jacobian (wide: stick-slip switching makes the
 #: output error piecewise smooth in the parameters)
 DIFF_STEP = 1e-2
+#: a time gap inside a run longer than this restarts the simulation from the measured state [s]
+RESTART_GAP_S = 1.0
+#: Levenberg-Marquardt steps on every sample after the fit on windows (long runs)
+FINAL_ITERS = 1
 
 
 class DrivingForm(IntEnum):
@@ -102,6 +108,8 @@ class DynamicFit:
     nfev: int = 0
     #: the environment of the TESTBED form is the runs' declared one (per run), not fitted
     declared_env: bool = False
+    #: the target predicted on every training sample at the fitted parameters [Nm]
+    pred_train_Nm: np.ndarray | None = field(default=None, repr=False)
 
     def predict(self, sig: Signals) -> np.ndarray:
         """The target channel predicted on ``sig`` [Nm] (every sample, runs separately).
@@ -163,7 +171,13 @@ def _vector(form: DrivingForm, params: dict[str, float]) -> np.ndarray:
 
 
 def _starts(sig: Signals) -> np.ndarray:
-    return np.array([a for a, _ in sig.segments()] + [len(sig)], dtype=np.int64)
+    """First sample of each simulated stretch, then ``len(sig)``: each run's start, and inside
+    a run the first sample after a gap longer than ``RESTART_GAP_S`` (the state through the
+    gap is unknown: the simulation restarts from the measured state, as at a run's start)."""
+    cuts = [a for a, _ in sig.segments()]
+    if len(sig) > 1:
+        cuts.extend((np.flatnonzero(np.diff(sig.t_s) > RESTART_GAP_S) + 1).tolist())
+    return np.array(sorted(set(cuts)) + [len(sig)], dtype=np.int64)
 
 
 @dataclass
@@ -319,8 +333,16 @@ def _target(sig: Signals, spec: FormSpec) -> np.ndarray:
     return sig.tau_in_Nm if spec.target == "tau_in" else sig.tau_out_Nm
 
 
-def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_NFEV) -> DynamicFit:
+def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_NFEV,
+                warm_start_samples: int | None = None) -> DynamicFit:
     """Fit the dynamic baseline to the training runs ``sig`` (every sample).
+
+    Up to ``warm_start_samples`` (default ``windows.WARM_START_SAMPLES``) samples: bounded
+    least squares (scipy, trust region reflective) from the data-derived start. Longer runs: the same fit on contiguous windows
+    (:mod:`capstan.models.closure.windows`), then ``FINAL_ITERS`` bounded Levenberg-Marquardt
+    steps on every sample (:mod:`capstan.models.common.projected_lm`); the parameters and
+    the training RMSE are those on every sample, the covariance is the sandwich of the
+    every-sample Jacobian of the last step (at its start: the step from a warm start is small).
 
     :raises ModelError: if the runs carry no motion, lack the channels of the form, or
         the simulation fails.
@@ -347,20 +369,28 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
 
     x0 = np.clip(p0[free], lo[free], hi[free])
     scale = np.maximum(np.abs(x0), 1e-3 * v95)
-    res = least_squares(resid, x0, bounds=(lo[free], hi[free]), x_scale=scale, diff_step=DIFF_STEP,
-                        max_nfev=max_nfev, method="trf")
-    p = full(res.x)
-    r = res.fun
-    J = res.jac
+    if len(sig) > (windows.WARM_START_SAMPLES if warm_start_samples is None else warm_start_samples):
+        # long runs: solved on contiguous windows first, finished on every sample
+        warm = fit_dynamic(sig.take(windows.window_index(sig)), spec, max_nfev, warm_start_samples=len(sig))
+        xw = np.clip(_vector(form, warm.params)[free], lo[free], hi[free])
+        lm = projected_lm(resid, xw, lo[free], hi[free], scale, FINAL_ITERS, DIFF_STEP, want_jac=True,
+                          final_jac=False)
+        assert lm.jac is not None
+        xf, r, J, nfev = lm.x, lm.r, lm.jac, warm.nfev + lm.nfev
+    else:
+        res = least_squares(resid, x0, bounds=(lo[free], hi[free]), x_scale=scale, diff_step=DIFF_STEP,
+                            max_nfev=max_nfev, method="trf")
+        xf, r, J, nfev = res.x, res.fun, res.jac, int(res.nfev)
+    p = full(xf)
     cov = sandwich_cov(J, r)
     se_free = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     params = {nm: float(v) for nm, v in zip(names, p)}
     stderr = {nm: 0.0 for nm in names}
     for nm, s in zip([nm for nm, f in zip(names, free) if f], se_free):
         stderr[nm] = float(s)
-    fit = DynamicFit(spec, params, stderr, n_samples=len(sig), nfev=int(res.nfev), declared_env=declared)
-    pred = _predict(form, p, sig, declared)[0]
-    fit.rmse_Nm = float(np.sqrt(np.mean((pred - y) ** 2)))
+    fit = DynamicFit(spec, params, stderr, n_samples=len(sig), nfev=nfev, declared_env=declared)
+    fit.pred_train_Nm = r[:len(sig)] + y          # (the residual's first block is the target's)
+    fit.rmse_Nm = float(np.sqrt(np.mean(r[:len(sig)] ** 2)))
     for i, nm in enumerate(names):
         if not free[i]:
             continue

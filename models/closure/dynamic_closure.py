@@ -11,7 +11,8 @@ bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechani
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -20,9 +21,11 @@ from capstan.models.closure.dynamic_baseline import DynamicFit, fit_dynamic
 from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit, Refs, catalogue
 from capstan.models.closure.effects import Target
 from capstan.models.closure.exclusion import excluded_signals
-from capstan.models.closure.residual_trace import hat_basis, knots_for
+from capstan.models.closure.long_run_effects import SCREEN_MIN, LongRunCloser
+from capstan.models.closure.residual_trace import knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
+from capstan.models.closure import windows
 
 
 @dataclass
@@ -39,6 +42,9 @@ class DynamicSetup:
     y_train_Nm: np.ndarray
     y_test_Nm: np.ndarray
     excluded: dict[str, str]
+    #: wall time of the stages run on this setup [s] (``trace``; long runs: ``screen``,
+    #: ``held-out``, ``joint`` inside the candidates' time)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
 
 
@@ -54,7 +60,8 @@ def setup(train: Signals, test: Signals) -> DynamicSetup:
     """
     fit = fit_dynamic(train)
     tgt = fit.spec.target
-    return DynamicSetup(fit, fit.predict(train), fit.predict(test), target_channel(train, tgt),
+    pred_train = fit.pred_train_Nm if fit.pred_train_Nm is not None else fit.predict(train)
+    return DynamicSetup(fit, pred_train, fit.predict(test), target_channel(train, tgt),
                         target_channel(test, tgt), excluded_signals(train, tgt, fit.spec.driving))
 
 
@@ -71,6 +78,8 @@ N_BOOT_DYN = 2000
 N_EMPIRICAL = 6
 #: knots of the trace's curves
 TRACE_KNOTS = 12
+#: rows per block of the trace's normal equations
+TRACE_BLOCK_ROWS = 262_144
 
 Progress = Callable[[int, int, str], None]
 
@@ -91,6 +100,36 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
     return {}
 
 
+def _trace_rows(x: np.ndarray, s: np.ndarray, kn: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Column indices and values of the trace design's four non-zeros per row: the hat basis
+    of ``x`` over ``kn`` (as :func:`hat_basis`: two neighbouring knots), as is and times ``s``."""
+    k = kn.shape[0]
+    xc = np.clip(x, kn[0], kn[-1])
+    j = np.clip(np.searchsorted(kn, xc, side="right") - 1, 0, k - 2)
+    w = (xc - kn[j]) / np.maximum(kn[j + 1] - kn[j], 1e-300)
+    return [j, j + 1, k + j, k + j + 1], [1.0 - w, w, s * (1.0 - w), s * w]
+
+
+def _trace_normal_equations(x: np.ndarray, s: np.ndarray, r: np.ndarray, kn: np.ndarray,
+                            G: np.ndarray, g: np.ndarray) -> None:
+    """Add ``X^T X`` and ``X^T r`` of the trace design of these rows to ``G``, ``g`` (the design
+    has four non-zeros per row: accumulated by index, no ``n x 2k`` matrix)."""
+    k2 = G.shape[0]
+    idx, val = _trace_rows(x, s, kn)
+    acc = np.zeros((k2, k2))
+    for a, (ia, va) in enumerate(zip(idx, val)):
+        g += np.bincount(ia, va * r, minlength=k2)
+        for ib, vb in list(zip(idx, val))[a:]:
+            acc += np.bincount(ia * k2 + ib, va * vb, minlength=k2 * k2).reshape(k2, k2)
+    G += acc + acc.T - np.diag(np.diag(acc))
+
+
+def _trace_curve(x: np.ndarray, s: np.ndarray, kn: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """The trace design of these rows times ``coef``."""
+    idx, val = _trace_rows(x, s, kn)
+    return sum(v * coef[i] for i, v in zip(idx, val))
+
+
 def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict]:
     """How much of the dynamic residual each candidate signal explains: a piecewise-linear
     curve of the signal, additive and friction-like (times tanh(dq / 2 v_rest)), fitted on
@@ -99,6 +138,8 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
     r_tr = ds.y_train_Nm - ds.pred_train_Nm
     r_te = ds.y_test_Nm - ds.pred_test_Nm
     base = _rmse(r_te)
+    s_tr = np.tanh(train.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
+    s_te = np.tanh(test.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
     out = []
     for name in train.available():
         x, xt = train.signal(name), test.signal(name)
@@ -108,20 +149,28 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
         if kn is None:
             continue
 
-        def design(sig: Signals, xs: np.ndarray) -> np.ndarray:
-            H = hat_basis(xs, kn)
-            s = np.tanh(sig.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
-            return np.hstack([H, s[:, None] * H])
-
-        X = design(train, x)
-        G = X.T @ X
+        k2 = 2 * kn.size
+        G = np.zeros((k2, k2))
+        g = np.zeros(k2)
+        for a in range(0, len(train), TRACE_BLOCK_ROWS):
+            b = a + TRACE_BLOCK_ROWS
+            _trace_normal_equations(x[a:b], s_tr[a:b], r_tr[a:b], kn, G, g)
         G[np.diag_indices_from(G)] += 1e-6 * max(float(np.trace(G)) / G.shape[0], 1e-12)
-        coef = np.linalg.solve(G, X.T @ r_tr)
-        imp = 1.0 - _rmse(r_te - design(test, xt) @ coef) / base if base > 0 else 0.0
+        coef = np.linalg.solve(G, g)
+        sse = 0.0
+        for a in range(0, len(test), TRACE_BLOCK_ROWS):
+            b = a + TRACE_BLOCK_ROWS
+            e = r_te[a:b] - _trace_curve(xt[a:b], s_te[a:b], kn, coef)
+            sse += float(np.dot(e, e))
+        imp = 1.0 - math.sqrt(sse / len(test)) / base if base > 0 else 0.0
         out.append({"signal": name, "explained": max(0.0, 1.0 - (1.0 - imp) ** 2), "improvement": float(imp),
                     "significant": False})
     out.sort(key=lambda d: -d["improvement"])
     return out
+
+
+def _tick(ds: DynamicSetup, stage: str, t0_s: float) -> None:
+    ds.timings_s[stage] = ds.timings_s.get(stage, 0.0) + time.perf_counter() - t0_s
 
 
 def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Progress | None = None,
@@ -132,9 +181,13 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
     """
     fit = ds.fit
     closer = InModelCloser(fit, train, test)
+    # long runs: candidates screened on training windows, the winner refitted on every sample
+    long_run = LongRunCloser(closer) if len(train) > windows.WARM_START_SAMPLES else None
     refs = Refs(float(np.mean(train.q_out_rad)), max(0.5 * float(np.ptp(train.q_out_rad)), 1e-6),
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
+    t0 = time.perf_counter()
     trace = residual_trace(ds, train, test)
+    ds.timings_s["trace"] = time.perf_counter() - t0
     emp = [d["signal"] for d in trace][:N_EMPIRICAL]
     remaining = catalogue(train, refs, ds.excluded, emp)
     labels = test_blocks(test)
@@ -153,18 +206,41 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             step += 1
             if progress:
                 progress(step, max(total, step), f"round {rnd}: {eff.name}")
-            shape = closer.best_shape(current, eff)
-            jf = closer.refit(current, eff, shape, base_free=False)
-            pt = closer.predict(jf)
+            if long_run is not None:
+                t0 = time.perf_counter()
+                shape, jf, imp_train = long_run.candidate(current, eff)
+                _tick(ds, "screen", t0)
+            else:
+                shape = closer.best_shape(current, eff)
+                jf = closer.refit(current, eff, shape, base_free=False)
+            screened = False
+            if long_run is not None:
+                t0 = time.perf_counter()
+                pt_full = long_run.held_out(jf, imp_train)
+                _tick(ds, "held-out", t0)
+                screened = pt_full is None
+                pt = pt_full if pt_full is not None else pred_t
+            else:
+                pt = closer.predict(jf)
             r_after = yt - pt
-            # Bonferroni over the round's candidates: with every signal tried as an empirical
-            # curve, 5 % per candidate would let one of them through on clean data by chance
-            imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN, alpha=ALPHA / len(remaining))
             coef = jf.effects[-1][2]
             tau_fc = float(jf.base[names.index("tau_fc_Nm")])
-            cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
-                             _named(eff, shape, coef, tau_fc, refs), _rmse(r_after), float(np.max(np.abs(r_after))),
-                             imp, lo, bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
+            if not screened:
+                # Bonferroni over the round's candidates: with every signal tried as an empirical
+                # curve, 5 % per candidate would let one of them through on clean data by chance
+                imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN,
+                                          alpha=ALPHA / len(remaining))
+                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                                 _named(eff, shape, coef, tau_fc, refs), _rmse(r_after),
+                                 float(np.max(np.abs(r_after))), imp, lo,
+                                 bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
+                cand.held_out_samples = len(r_after)
+            else:      # not scored: it does not help even on the training windows it was fitted on
+                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                                 _named(eff, shape, coef, tau_fc, refs), math.nan, math.nan, math.nan, math.nan,
+                                 False)
+                cand.screened_out = (f"screened out: {100 * imp_train:.1f} % lower RMSE on the training windows "
+                                     f"(< {100 * SCREEN_MIN:.1f} %)")
             cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)
@@ -180,11 +256,16 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement) else best_emp
         assert win is not None
         res.selected.append(win)
-        _, _, weff, wshape = fits[id(win)]
+        wjf, _, weff, wshape = fits[id(win)]
         # the selected effect refitted jointly with the baseline's parameters (kept where the
         # joint fit does not lower the training error: refit returns the held fit then)
         prev = JointFit(current.base, list(current.effects))
-        current = closer.refit(prev, weff, wshape, base_free=True)
+        if long_run is not None:
+            t0 = time.perf_counter()
+            current = long_run.joint(prev, weff, wshape, wjf.effects[-1][2])
+            _tick(ds, "joint", t0)
+        else:
+            current = closer.refit(prev, weff, wshape, base_free=True)
         win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)
         pred_t = closer.predict(current)
         res.params_after = {n: float(v) for n, v in zip(names, current.base)}

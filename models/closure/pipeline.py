@@ -26,6 +26,7 @@ signal, friction-like or additive, trend or period) instead of forcing an effect
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -61,6 +62,8 @@ class ClosureResult:
     trace: list[dict]
     #: the dynamic baseline (None: the static regression predicted tau_out)
     dynamic: DynamicSetup | None = None
+    #: wall time of the closure's stages [s] (feedforward, baseline, trace, candidates)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
 
 def _best_shape(spec: EffectSpec, aug: Augmented, Q: np.ndarray,
@@ -197,13 +200,17 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
 
     :raises ModelError: if a baseline cannot be fitted.
     """
+    t0 = time.perf_counter()
     idx_tr, idx_te = decimation_index(len(train), max_samples), decimation_index(len(test), max_samples)
     train_d, test_d = train.take(idx_tr), test.take(idx_te)
     baseline = fit_baseline(train_d, kind)
     ctx = FeatureContext.from_train(train_d, baseline)
     labels = test_blocks(test_d)
     emp = empirical_candidates(train)
+    t1 = time.perf_counter()
+    timings = {"feedforward": t1 - t0}
     ds = dyn_setup(train, test) if dynamic else None
+    timings["baseline"] = time.perf_counter() - t1
     specs = {Target.TAU_OUT: [s for s in catalogue_for(train) + emp
                               if s.target == Target.TAU_OUT and s.applicable(test)] if ds is None else []}
     # the static elastic path (tau_in + tau_out linear in the angles) only beside the static
@@ -219,7 +226,10 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
         X0t: np.ndarray | None = None
         theta0: np.ndarray | None = None
         if t == Target.TAU_OUT and ds is not None:     # effects inside the simulation
+            t2 = time.perf_counter()
             r, step = close_in_model(ds, train, test, progress, step, total)
+            timings["trace"] = ds.timings_s.get("trace", 0.0)
+            timings["candidates"] = time.perf_counter() - t2 - timings["trace"]
             # scored on every held-out sample; the arrays kept for the plots on the rows of test_d
             r.y_test, r.pred_before, r.pred_after = r.y_test[idx_te], r.pred_before[idx_te], r.pred_after[idx_te]
             targets[t] = r
@@ -243,7 +253,9 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     trace.sort(key=lambda d: -d["explained"])
     if progress:
         progress(total, total, "done")
-    return ClosureResult(baseline, train_d, test_d, targets, trace, ds)
+    if ds is None:
+        timings["candidates"] = time.perf_counter() - t1 - timings["baseline"]
+    return ClosureResult(baseline, train_d, test_d, targets, trace, ds, timings)
 
 
 def split_single(sig: Signals, train_fraction: float = 0.7) -> tuple[Signals, Signals]:

@@ -44,12 +44,20 @@ class Candidate:
     description: dict | None = None
     #: the augmented model's baseline parameters refitted with this candidate (friction path)
     baseline_params: dict[str, float] | None = None
+    #: held-out samples the scores are computed on (0: not recorded or not scored)
+    held_out_samples: int = 0
+    #: why the candidate was not scored on the held-out runs (long runs), else ""
+    screened_out: str = ""
 
     def summary(self) -> dict:
         """JSON-able summary."""
         d = {"effect": self.effect, "depends_on": list(self.depends_on), "target": self.target.name.lower(),
              "round": self.round, "rmse_Nm": self.rmse_Nm, "max_err_Nm": self.max_err_Nm,
              "improvement": self.improvement, "improvement_ci_low": self.ci_low, "significant": self.significant}
+        if self.held_out_samples:
+            d["held_out_samples"] = self.held_out_samples
+        if self.screened_out:
+            d["screened_out"] = self.screened_out
         if self.description:
             d["description"] = self.description["text"]
         return d

@@ -105,7 +105,7 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
     return v
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad: np.ndarray, c0_Nms_rad: np.ndarray,
                   kx_Nm_rad: np.ndarray, k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
                   b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray,

@@ -237,6 +237,9 @@ def write_report(res: ClosureResult, summ: dict[str, Any], outdir: Path, attribu
           "|---|---|---|---|---|---|---|---|"]
     L += [f"| {c['round']} | {c['target']} | {c['effect']} | {', '.join(c['depends_on'])} | {c['rmse_Nm']:.4g} | "
           f"{c['improvement']:.1%} | {c['improvement_ci_low']:.1%} | {'yes' if c['significant'] else 'no'} |"
+          if not c.get("screened_out") else
+          f"| {c['round']} | {c['target']} | {c['effect']} | {', '.join(c['depends_on'])} | - | - | - | "
+          f"no ({c['screened_out']}) |"
           for c in summ["candidates"]]
     L += ["", "## Selected", ""]
     if not summ["selected"]:

@@ -1,0 +1,81 @@
+"""The closure's path for long runs -- the baseline fitted on contiguous windows and finished
+on every sample, candidates screened on windows and scored on every held-out sample, the
+winner refitted with the baseline on every sample (models/closure/windows.py,
+long_run_effects.py, models/common/projected_lm.py) -- on runs of another model family:
+the distributed-model testbed runs of tests/test_closure_families.py (N = 12, double bend,
+eq-23 field, noise 0.02 Nm, held-out runs in another environment), with the long-run
+thresholds lowered so that these 15 s runs take that path. The bars are the short path's.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from capstan.models.closure import windows
+from capstan.models.closure.effects import Target
+from capstan.models.closure.pipeline import ClosureResult, close
+from capstan.models.closure.signals import signals_from_tables
+
+from closure_plants import distributed_run
+from test_closure_families import INJECT, SECONDS, SIGNAL
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture
+def long_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    # 15 000 training samples: two 5 s windows of 10 000 samples (the shipped figures: an hour's
+    # 2.5 M training samples, four 10 s windows of 40 000)
+    monkeypatch.setattr(windows, "WARM_START_SAMPLES", 5_000)
+    monkeypatch.setattr(windows, "WINDOW_SAMPLES", 10_000)
+    monkeypatch.setattr(windows, "WINDOW_S", 5.0)
+    monkeypatch.setattr(windows, "SCREEN_SAMPLES", 10_000)
+    monkeypatch.setattr(windows, "SCREEN_WINDOW_S", 5.0)
+
+
+def _close(effect: str) -> ClosureResult:
+    inj = INJECT[effect]
+    tr, _ = distributed_run(SECONDS, seed=1, k_out=20.0, b_out=2.0, source="train", inject=inj)
+    te, _ = distributed_run(SECONDS, seed=2, k_out=35.0, b_out=1.5, source="test", inject=inj)
+    sig = signals_from_tables([tr, te])
+    return close(sig.take(sig.run_id == 0), sig.take(sig.run_id == 1))
+
+
+def test_clean_runs_on_the_long_path(long_path: None) -> None:
+    res = _close("none")
+    r = res.targets[Target.TAU_OUT]
+    assert res.dynamic is not None
+    fit = res.dynamic.fit
+    n_train = len(res.dynamic.y_train_Nm)
+    assert n_train > windows.WARM_START_SAMPLES               # the long path was taken
+    assert fit.n_samples == n_train                             # the reported fit is on every sample
+    assert r.rmse_before_Nm <= 0.05
+    # eq 19 on the routing's eq-23/25 pretension: 1.73 Nm (test_closure_dynamic)
+    assert fit.params["tau_fc_Nm"] == pytest.approx(1.73, rel=0.05)
+    assert r.selected == [], [(c.effect, c.improvement, c.ci_low) for c in r.selected]
+    # every candidate says on how many held-out samples it was scored
+    n_test = len(res.dynamic.y_test_Nm)
+    assert all(c.held_out_samples == n_test or (c.screened_out and not c.significant) for c in r.candidates)
+
+
+#: measured shortfalls of the long path at this scale (the short path meets both)
+SHORT_LONG = {
+    "pretension_creep": "measured 2026-11-26: pretension_relaxation (time) first, held-out 0.199 -> 0.169 Nm "
+                        "(-15 %; short path -77 %): two 5 s windows of a 15 s run hold the 15 s creep poorly",
+    "load_cell_gain": "measured 2026-11-26: the long path's baseline predicts the held-out run better (0.060 Nm, "
+                      "short path 0.091 Nm) and empirical:position is selected first, not load",
+}
+
+
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=SHORT_LONG[e]))
+                                    if e in SHORT_LONG else e
+                                    for e in ["bending_with_angle", "pretension_creep", "load_cell_gain"]])
+def test_injected_effects_on_the_long_path(long_path: None, effect: str) -> None:
+    res = _close(effect)
+    r = res.targets[Target.TAU_OUT]
+    assert r.selected, f"{effect}: nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
+    assert set(r.selected[0].depends_on) & SIGNAL[effect], [(c.effect, c.depends_on) for c in r.selected]
+    assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
+    # the selected ones were scored on every held-out sample
+    assert res.dynamic is not None
+    assert all(c.held_out_samples == len(res.dynamic.y_test_Nm) for c in r.selected)
