@@ -188,3 +188,20 @@ def test_link_fit_on_the_distributed_plant_reaches_the_noise_floor_with_the_eq19
     ex = excluded_signals(train, fit.spec.target, fit.spec.driving)
     assert "load" in ex
     assert math.isfinite(fit.rmse_Nm)
+
+
+def test_tension_of_the_targets_own_load_cells_is_not_a_candidate() -> None:
+    t = np.arange(0.0, 4.0, 1e-3)
+    rng = np.random.default_rng(3)
+    q = 0.3 * np.sin(2 * np.pi * 0.5 * t)
+    cols = {"t": t, "tau_in": np.sin(2 * np.pi * 0.5 * t) + 0.1 * rng.standard_normal(t.size),
+            "tau_out": 0.8 * np.sin(2 * np.pi * 0.5 * t), "q_in": q, "q_out": q,
+            "T_lc_in": 150.0 + rng.standard_normal(t.size), "T_lc_out": 150.0 + rng.standard_normal(t.size)}
+    both = signals_from_tables([MeasurementTable(cols, dict(LINK_META), "both")])
+    assert both.tension_sides == ("in", "out")
+    ex = excluded_signals(both, "tau_in", ("q_in", "tau_out"))
+    assert "T_lc_in" in ex["tension"] and "load" in ex
+    out_only = {k: v for k, v in cols.items() if k != "T_lc_in"}
+    sig = signals_from_tables([MeasurementTable(out_only, dict(LINK_META), "out")])
+    assert "tension" not in excluded_signals(sig, "tau_in", ("q_in", "tau_out"))     # a mechanism candidate there
+    assert "tension" in excluded_signals(sig, "tau_out", ("tau_in",))
