@@ -19,7 +19,8 @@ Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
     ``(b_out) v + f = rho tau_in - k_out x``; tau_out is predicted.
 ``LINK`` -- the output is a link moved by unmeasured forces (hand, gravity; table meta
     ``output: link``, written by the daemon's log mapping): tau_out (output load cells) and
-    q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted.
+    q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted;
+    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted.
     The link angle (IMU, ~0.5 mrad noise) does not drive: x ~500 Nm/rad it is ~0.25 Nm.
 ``ANGLES`` -- both pulley angles drive the node of the unit:
     ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
@@ -304,6 +305,10 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
         tfc0 = max(float(np.percentile(np.abs(f), 50)), 1e-6)
         kp0 = tfc0 / (PRESLIDE_FRACTION * span_q)
         x0 = [K0, g0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, float(c0)]
+        if form == DrivingForm.LINK:
+            # the output load cells measure the torque on the output pulley: g = r_in / r_out
+            # (the inverse angle ratio) is geometry, not fitted (a free g takes up effects)
+            x0[1], fixed[1] = 1.0 / sig.ratio_q, True
         lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
         hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
     elif form == DrivingForm.TESTBED:
