@@ -309,6 +309,11 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
             # the output load cells measure the torque on the output pulley: g = r_in / r_out
             # (the inverse angle ratio) is geometry, not fitted (a free g takes up effects)
             x0[1], fixed[1] = 1.0 / sig.ratio_q, True
+            # the input half of the cable (K_h = 2 K_c) from the link's elastic path: the
+            # stroke-based start above is far softer on a link and the fit stalls there
+            kc = float(fit_elastic(sig).get("elastic", {}).get("K_c_Nm_rad", 0.0))
+            if kc > 0.0:
+                x0[0] = 2.0 * kc
         lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
         hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
     elif form == DrivingForm.TESTBED:
