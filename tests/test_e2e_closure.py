@@ -217,7 +217,7 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
     cfg = copy.deepcopy(CFG)
     cfg["logging"]["dir"] = str(tmp_path / "logs")
     cfg["realtime"]["lock_memory"] = False
-    out = _hil(cfg, tmp_path / "a.yaml", 16.0)
+    out = _hil(cfg, tmp_path / "a.yaml", 40.0)     # two periods of the hand pattern: the held-out tail holds rests
     assert out["faults"] == []
     assert out["plant"]["effects"] == [DWELL]
     hand = out["plant"]["hand"]

@@ -309,6 +309,11 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
             # the output load cells measure the torque on the output pulley: g = r_in / r_out
             # (the inverse angle ratio) is geometry, not fitted (a free g takes up effects)
             x0[1], fixed[1] = 1.0 / sig.ratio_q, True
+            # with g fixed: the offset at the middle of the friction band tau_in - g tau_out,
+            # the capacity at its half width
+            fb = tin - x0[1] * tout
+            lo5, hi95 = (float(v) for v in np.percentile(fb, [5, 95]))
+            x0[7], x0[2] = 0.5 * (lo5 + hi95), max(0.5 * (hi95 - lo5), 1e-6)
             # the input half of the cable (K_h = 2 K_c) from the link's elastic path: the
             # stroke-based start above is far softer on a link and the fit stalls there
             kc = float(fit_elastic(sig).get("elastic", {}).get("K_c_Nm_rad", 0.0))
