@@ -17,6 +17,11 @@ Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
 ``TESTBED`` -- tau_in drives the declared environment ``tau_out = k_out q + b_out dq``
     (eq 22; fitted when no environment is declared): eq (20) with the friction state,
     ``(b_out) v + f = rho tau_in - k_out x``; tau_out is predicted.
+``LINK`` -- the output is a link moved by unmeasured forces (hand, gravity; table meta
+    ``output: link``, written by the daemon's log mapping): tau_out (output load cells) and
+    q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted;
+    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted.
+    The link angle (IMU, ~0.5 mrad noise) does not drive: x ~500 Nm/rad it is ~0.25 Nm.
 ``ANGLES`` -- both pulley angles drive the node of the unit:
     ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
     are predicted; the fit uses both torques.
@@ -69,6 +74,7 @@ class DrivingForm(IntEnum):
     OUTPUT_HELD = 0
     TESTBED = 1
     ANGLES = 2
+    LINK = 3
 
 
 @dataclass(frozen=True)
@@ -146,6 +152,14 @@ def choose_form(sig: Signals) -> FormSpec:
     if sig.environment is not None:
         return FormSpec(DrivingForm.TESTBED, "tau_out", ("tau_in", "environment"),
                         "the runs declare the output environment tau_out = k_out q_out + b_out dq_out")
+    if sig.output_link:
+        if not has_angles:
+            raise ModelError("the runs declare a link output (output: link): its dynamics are not simulated, so the "
+                             "input angle q_in (the motor angle) must drive the input side, and the runs lack it; "
+                             "use the static baseline (--baseline static)")
+        return FormSpec(DrivingForm.LINK, "tau_in", ("q_in", "tau_out"),
+                        "the output is a link moved by unmeasured forces (hand, gravity): the measured output torque "
+                        "and the input angle drive, tau_in is predicted")
     if has_angles:
         return FormSpec(DrivingForm.ANGLES, "tau_out", ("q_in", "q_out"),
                         "both pulley angles are measured and no output environment is declared")
@@ -157,8 +171,14 @@ _NAMES = {DrivingForm.OUTPUT_HELD: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_
                                     "offset_in_Nm"),
           DrivingForm.TESTBED: ("k_out_Nm_rad", "b_out_Nms_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s",
                                 "b_vis_Nms_rad", "offset_out_Nm"),
+          DrivingForm.LINK: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
+                             "offset_in_Nm"),
           DrivingForm.ANGLES: ("K_c_Nm_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
                                "offset_in_Nm", "offset_out_Nm")}
+
+
+#: forms whose unit is driven by q_in and tau_out and predicts tau_in
+_INPUT_PREDICTED = (DrivingForm.OUTPUT_HELD, DrivingForm.LINK)
 
 
 def param_names(form: DrivingForm) -> tuple[str, ...]:
@@ -203,10 +223,10 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
     rho = sig.ratio_q
-    if form == DrivingForm.OUTPUT_HELD:
+    if form in _INPUT_PREDICTED:
         K, g, tfc, kp, zs, eta, bv, c_in = p
         if sig.q_in_rad is None:
-            raise ModelError("the OUTPUT_HELD form needs q_in")
+            raise ModelError(f"the {form.name} form needs q_in")
         a = K * sig.q_in_rad - g * sig.tau_out_Nm
         x0 = a[starts[:-1]] / K
         c0, kx = 0.0, K
@@ -243,7 +263,7 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
-    if form == DrivingForm.OUTPUT_HELD:
+    if form in _INPUT_PREDICTED:
         out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + c_in, None)
     elif form == DrivingForm.TESTBED:
         out = (kout * x + bout * v + c_out, None)
@@ -271,7 +291,7 @@ def input_velocity(sig: Signals) -> np.ndarray:
 
 
 def _velocity_scale(sig: Signals, form: DrivingForm) -> float:
-    if form == DrivingForm.OUTPUT_HELD and sig.q_in_rad is not None:
+    if form in _INPUT_PREDICTED and sig.q_in_rad is not None:
         dq = input_velocity(sig)
     else:
         dq = sig.dq_out_rad_s
@@ -286,9 +306,9 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
     form = spec.form
     rho = sig.ratio_q
     tin, tout = sig.tau_in_Nm, sig.tau_out_Nm
-    moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form != DrivingForm.OUTPUT_HELD else slice(None)
+    moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form not in _INPUT_PREDICTED else slice(None)
     fixed = [False] * 8
-    if form == DrivingForm.OUTPUT_HELD:
+    if form in _INPUT_PREDICTED:
         assert sig.q_in_rad is not None
         B = np.column_stack([tout, np.ones(len(sig))])
         g0, c0 = np.linalg.lstsq(B, tin, rcond=None)[0]
@@ -299,6 +319,20 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
         tfc0 = max(float(np.percentile(np.abs(f), 50)), 1e-6)
         kp0 = tfc0 / (PRESLIDE_FRACTION * span_q)
         x0 = [K0, g0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, float(c0)]
+        if form == DrivingForm.LINK:
+            # the output load cells measure the torque on the output pulley: g = r_in / r_out
+            # (the inverse angle ratio) is geometry, not fitted (a free g takes up effects)
+            x0[1], fixed[1] = 1.0 / sig.ratio_q, True
+            # with g fixed: the offset at the middle of the friction band tau_in - g tau_out,
+            # the capacity at its half width
+            fb = tin - x0[1] * tout
+            lo5, hi95 = (float(v) for v in np.percentile(fb, [5, 95]))
+            x0[7], x0[2] = 0.5 * (lo5 + hi95), max(0.5 * (hi95 - lo5), 1e-6)
+            # the input half of the cable (K_h = 2 K_c) from the link's elastic path: the
+            # stroke-based start above is far softer on a link and the fit stalls there
+            kc = float(fit_elastic(sig).get("elastic", {}).get("K_c_Nm_rad", 0.0))
+            if kc > 0.0:
+                x0[0] = 2.0 * kc
         lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
         hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
     elif form == DrivingForm.TESTBED:

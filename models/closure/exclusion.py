@@ -8,6 +8,8 @@ candidates; :func:`excluded_signals` lists them with the reason:
 
 * declared: the import description marks the channel ``tied_to: tau_in | tau_out``;
 * the target itself under another name (``load`` is tau_in);
+* ``tension`` when it averages the target's own load cells (T_lc_in for tau_in, T_lc_out for
+  tau_out): the common mode of the cells whose difference is the target;
 * measured: on the training runs the target is a linear function of the signal
   (R^2 >= ``TIE_R2``) or of a pair of signals (R^2 >= ``PAIR_R2``);
 * the same test against a driving torque channel: a second sensor of what drives the
@@ -55,6 +57,10 @@ def excluded_signals(sig: Signals, target: str, driving: tuple[str, ...] = ()) -
             out[name] = f"declared in the import description as tied to {tied}"
     if target == "tau_in" and "load" in avail:
         out["load"] = "load is tau_in, the predicted channel"
+    side = "in" if target == "tau_in" else "out"
+    if "tension" in avail and side in sig.tension_sides:
+        out["tension"] = (f"tension averages the {side}put-side load cells (T_lc_{side}), whose difference is {target}: "
+                          "a second reading of the predicted channel's sensors")
     protected = MOTION | {_DRIVING_SIGNAL.get(d, d) for d in driving}
     ties = [(target, f"tied to {target}")]
     ties += [(d, f"a second sensor of the driving channel {d}") for d in driving if d in ("tau_in", "tau_out") and d != target]

@@ -109,6 +109,10 @@ class Signals:
     environment: np.ndarray | None = None
     #: extra channels declared (import description ``tied_to``) as measuring a torque channel
     tied_to: dict[str, str] = field(default_factory=dict)
+    #: every run declares a link output (meta ``output: link``): moved by forces not measured
+    output_link: bool = False
+    #: fixture sides whose load cells ``tension_N`` averages ("in": T_lc_in, "out": T_lc_out)
+    tension_sides: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -121,7 +125,8 @@ class Signals:
                        self.q_out_rad[mask], self.dq_out_rad_s[mask], self.ddq_out_rad_s2[mask],
                        self.dwell_s[mask], self.rest_s[mask], self.slide_rad[mask], tk(self.q_in_rad),
                        tk(self.tension_N), {k: v[mask] for k, v in self.extras.items()}, list(self.names),
-                       self.v_rest_rad_s, self.ratio_q, tk(self.environment), dict(self.tied_to))
+                       self.v_rest_rad_s, self.ratio_q, tk(self.environment), dict(self.tied_to), self.output_link,
+                       self.tension_sides)
 
     @property
     def deflection_rad(self) -> np.ndarray | None:
@@ -228,7 +233,27 @@ def signals_from_tables(tables: list[MeasurementTable], v_rest_rad_s: float | No
                    cat.get("q_in"), cat.get("T"), {e: cat["x:" + e] for e in sorted(extra_names)},
                    [tb.source for tb in tables], float(v_rest_rad_s), ratio_q,
                    np.column_stack([cat["env_k"], cat["env_b"]]) if "env_k" in cat else None,
-                   {str(k): str(v) for tb in tables for k, v in (tb.meta.get("tied_to") or {}).items()})
+                   {str(k): str(v) for tb in tables for k, v in (tb.meta.get("tied_to") or {}).items()},
+                   all(_declared_output(tb) == "link" for tb in tables), tuple(c[5:] for c in tension_cols))
+
+
+#: values of the table meta key ``output``: a link moved by forces the run does not measure
+#: (the daemon's use case), or the testbed's environment
+OUTPUT_KINDS = ("link", "testbed")
+
+
+def _declared_output(tb: MeasurementTable) -> str | None:
+    """The table's ``output`` meta ("link" / "testbed"), or None when not declared.
+
+    :raises DataFormatError: if the value is not one of :data:`OUTPUT_KINDS` (naming the table).
+    """
+    out = tb.meta.get("output")
+    if out is None:
+        return None
+    if out not in OUTPUT_KINDS:
+        raise DataFormatError(f"{tb.source or '<table>'}: meta 'output' must be one of {', '.join(OUTPUT_KINDS)}, "
+                              f"got {out!r}")
+    return str(out)
 
 
 def _declared_environment(tb: MeasurementTable) -> tuple[float, float] | None:

@@ -1,14 +1,18 @@
 """End-to-end model closure on the daemon in hardware-in-the-loop mode.
 
 ``python -m capstan.tools.experiments.e2e_closure --out DIR [--config config/hil_effect.yaml] [--duration 90]
-[--retries 1] [--doc docs/e2e-closure.md]``
+[--retries 1] [--baseline dynamic|static] [--doc docs/e2e-closure.md]``
 
 The real commands, in separate processes, as an operator would run them:
 
 1. run A: ``capstan hil`` with the plant carrying an effect the controller's model lacks
    (``hil.plant.effects`` of the config; the daemon's own controller config);
 2. ``capstan close LOG_A --report DIR/close --json``: a single run, split into a contiguous
-   training head (70 %) and held-out tail; held-out prediction RMSE before/after;
+   training head (70 %) and held-out tail; held-out prediction RMSE before/after. The
+   baseline is the dynamic reduced model in its LINK form (the log declares a link output:
+   the motor angle and the output load cells drive, tau_in is predicted; ``--baseline
+   static`` for the friction-on-velocity regression). Selected effects that no injected one
+   accounts for are listed (``not_injected``);
 3. the learned fragment ``DIR/close/effects.yaml`` merged into the daemon config
    (``controller.feedforward.effects`` / ``effects_shape``; the fragment's
    ``identification`` section is kept for the record only). Only catalogued effects are
@@ -72,6 +76,24 @@ def merge_fragment(cfg: Mapping[str, Any], frag: Mapping[str, Any], empirical: b
     return out
 
 
+def not_injected(selected: Sequence[Mapping[str, Any]], injected: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Names of the selected effects that no injected effect accounts for: a selected effect is
+    accounted for when it is an injected one, or an empirical curve of (or a catalogued effect
+    depending only on) the signals the injected effects depend on (``empirical:dwell`` for an
+    injected ``dwell_stiction``)."""
+    from capstan.models.closure.effects import CATALOGUE
+    names = {str(e.get("effect")) for e in injected}
+    signals = {d for spec in CATALOGUE if spec.name in names for d in spec.depends_on}
+    out = []
+    for e in selected:
+        name = str(e.get("effect", ""))
+        deps = set(e.get("depends_on") or [])
+        if name in names or (deps and deps <= signals):
+            continue
+        out.append(name)
+    return out
+
+
 def without_effects(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """Copy of the config whose simulated plant carries no injected effect."""
     out = copy.deepcopy(dict(cfg))
@@ -126,15 +148,15 @@ def breakaway_figures(log_path: str) -> dict[str, Any]:
             "median_sliding_Nm": float(np.median([b.sliding_Nm for b in ev])) if ev else math.nan}
 
 
-def run_close(log_path: str, out: Path) -> dict[str, Any]:
-    """``capstan close LOG --report out/close --json``; returns its JSON object.
+def run_close(log_path: str, out: Path, baseline: str = "dynamic") -> dict[str, Any]:
+    """``capstan close LOG --report out/close --json --baseline BASELINE``; returns its JSON object.
 
     :raises CapstanError: if the command fails (its stderr tail in the message).
     """
-    # a daemon log's output is the link (hand + gravity), a driving form the dynamic baseline
-    # does not simulate yet: the static friction-on-velocity baseline is used here
+    # the dynamic baseline in its LINK form: the daemon's log declares a link output, so the motor
+    # angle and the output load cells drive the friction-state unit and tau_in is predicted
     cmd = [sys.executable, "-m", "capstan.tools.cli", "close", log_path, "--report", str(out / "close"), "--json",
-           "--no-progress", "--baseline", "static"]
+           "--no-progress", "--baseline", baseline]
     _log("close: " + " ".join(cmd[1:]))
     p = subprocess.run(cmd, capture_output=True, text=True)
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
@@ -181,7 +203,8 @@ def markdown(s: Mapping[str, Any]) -> str:
         "",
         "| | RMSE [Nm] | max error [Nm] |",
         "|---|---|---|",
-        f"| baseline (reduced model) | {cl['baseline']['rmse_Nm']:.4f} | {cl['baseline']['max_err_Nm']:.3f} |",
+        f"| baseline ({_baseline_label(cl['baseline'])}) | {cl['baseline']['rmse_Nm']:.4f} | "
+        f"{cl['baseline']['max_err_Nm']:.3f} |",
         f"| with the selected effects | {cl['final']['rmse_Nm']:.4f} | {cl['final']['max_err_Nm']:.3f} |",
     ] + [f"| baseline + {c['effect']} alone (round 1) | {c['rmse_Nm']:.4f} | {c['max_err_Nm']:.3f} |"
          for c in cl.get("candidates", []) if c["round"] == 1 and c["target"] == "tau_out"
@@ -191,6 +214,10 @@ def markdown(s: Mapping[str, Any]) -> str:
         + ("; ".join(f"**{e['effect']}** ({', '.join(e['depends_on'])}; improvement {100 * e['improvement']:.1f} %; "
                      + ", ".join(f"{k} {_fmt(v)}" for k, v in e["params"].items()) + ")" for e in cl["selected"])
            or "nothing") + ".",
+        "",
+        _baseline_line(cl["baseline"], cl["final"]),
+        "",
+        "Selected although not injected: " + (", ".join(s.get("not_injected", [])) or "none") + ".",
         "",
         "## Interaction torque and breakaway friction",
         "",
@@ -235,6 +262,21 @@ def markdown(s: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _baseline_label(b: Mapping[str, Any]) -> str:
+    form = b.get("form", "")
+    return f"reduced model, {form}" if form else "reduced model"
+
+
+def _baseline_line(b: Mapping[str, Any], f: Mapping[str, Any]) -> str:
+    """The baseline's driving form, target, skill (the dynamic baseline's report keys)."""
+    if "target" not in b:
+        return "Baseline: the static friction-on-velocity regression."
+    return (f"Baseline: the dynamic reduced model, form {b.get('form', '?')} ({b.get('form_reason', '')}); predicts "
+            f"{b['target']} from {', '.join(b.get('driving', []))}; held-out std of {b['target']} "
+            f"{b.get('target_std_Nm', math.nan):.3f} Nm, skill {b.get('skill', math.nan):.3f} (baseline) -> "
+            f"{f.get('skill', math.nan):.3f} (with the selected effects).")
+
+
 def write_markdown(summary: Mapping[str, Any], out: Path, doc: str | None) -> str:
     """Write ``out/summary.md`` (and ``doc``); returns the text."""
     md = markdown(summary)
@@ -265,6 +307,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--config", default=str(config_path("hil_effect.yaml")), help="HIL config with the effect")
     ap.add_argument("--duration", type=float, default=90.0, help="seconds of control of each run")
     ap.add_argument("--retries", type=int, default=1, help="repeats of a run that stopped on a fault")
+    ap.add_argument("--baseline", choices=("dynamic", "static"), default="dynamic",
+                    help="baseline of capstan close (dynamic: the reduced model simulated, LINK form on a daemon log)")
     ap.add_argument("--with-empirical", action="store_true", help="also merge the empirical curves into run B")
     ap.add_argument("--doc", help="also write the Markdown summary here (e.g. docs/e2e-closure.md)")
     ap.add_argument("--render", action="store_true", help="only rewrite the Markdown from DIR/summary.json")
@@ -286,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _log("run A produced no log")
         return 1
     try:
-        closure = run_close(runs["A"]["log_path"], out)
+        closure = run_close(runs["A"]["log_path"], out, args.baseline)
     except CapstanError as exc:
         _log(str(exc))
         return 1
@@ -300,7 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         r["breakaway"] = breakaway_figures(r["log_path"]) if r.get("log_path") else {}
     shown = os.path.relpath(args.config) if Path(args.config).resolve().is_relative_to(Path.cwd()) else args.config
     cmd = " ".join(["python -m capstan.tools.experiments.e2e_closure", "--out", args.out, "--config", shown,
-                    "--duration", f"{args.duration:g}"] + (["--with-empirical"] if args.with_empirical else [])
+                    "--duration", f"{args.duration:g}"] + (["--baseline", "static"] if args.baseline == "static" else []) + (["--with-empirical"] if args.with_empirical else [])
                    + (["--doc", args.doc] if args.doc else []))
     summary = {
         "command": cmd, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -312,6 +356,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "learned": merged["controller"]["feedforward"].get("effects", []),
         "learned_shape": merged["controller"]["feedforward"].get("effects_shape", {}),
         "left_out": left_out,
+        "not_injected": not_injected(closure["selected"], injected),
         "identification": frag.get("identification", {}), "runs": runs,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))

@@ -10,6 +10,9 @@ Standard columns (see :mod:`capstan.models.common.measurement_table`) from the c
     T_lc_out = (T_up_out_N + T_lo_out_N) / 2       mean tension at the output-side fixtures
     q_in     = q_m_rad                             motor position (drives the input pulley)
 
+The sidecar declares ``output: link`` (the daemon's output is a link moved by forces the
+log does not measure; the closure's dynamic baseline then drives by q_in and tau_out).
+
 Every record field is also written as an extra column under its own name (units in
 the sidecar). A standard column whose source fields are absent is left out.
 """
@@ -66,9 +69,20 @@ def records_to_table(records: np.ndarray, config: Mapping[str, Any], source: str
         "length": ff.routing_length_m,
         "curvature_profile": [list(p) for p in ff.routing_profile],
         "source_log": source,
+        "output": _output_kind(config),
         "mapping": {"tau_in": "r_in (T_up_in_N - T_lo_in_N)", "T_lc_in": "(T_up_in_N + T_lo_in_N)/2",
                     "T_lc_out": "(T_up_out_N + T_lo_out_N)/2", "q_in": "q_m_rad",
                     "q_out": "q_out_rad", "dq_out": "dq_out_rad_s", "t": "t_s"},
         "units": units,
     }
     return MeasurementTable(cols, meta, source)
+
+
+def _output_kind(config: Mapping[str, Any]) -> str:
+    """"link": the daemon drives a link moved by a hand and gravity, forces its log does not
+    measure; "testbed" only when the logged config's simulated plant (``hil.plant.output.mode``)
+    is the testbed."""
+    hil = config.get("hil")
+    plant = hil.get("plant") if isinstance(hil, Mapping) else None
+    out = plant.get("output") if isinstance(plant, Mapping) else None
+    return "testbed" if isinstance(out, Mapping) and out.get("mode") == "testbed" else "link"
