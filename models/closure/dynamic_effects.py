@@ -232,15 +232,42 @@ class InModelCloser:
 
     def best_shape(self, current: JointFit, eff: InModelEffect) -> dict:
         """The grid shape with the lowest training SSE, the baseline held (lag: refined to
-        whole samples between its grid neighbours)."""
+        whole samples between its grid neighbours, :meth:`_refine_lag`)."""
         if len(eff.grid) == 1:
             return eff.grid[0]
-        scored = []
-        for sh in eff.grid:
+        def sse(sh: dict) -> float:
             jf = self.refit(current, eff, sh, base_free=False, max_nfev=SHAPE_NFEV)
             r = self.predict(jf, test=False) - self.y
-            scored.append((float(np.dot(r, r)), sh))
-        return min(scored, key=lambda s: s[0])[1]
+            return float(np.dot(r, r))
+
+        scored = [(sse(sh), sh) for sh in eff.grid]
+        best = min(scored, key=lambda s: s[0])
+        if set(best[1]) == {"lag_s"}:
+            best = self._refine_lag(best, [sh["lag_s"] for _, sh in scored], sse)
+        return best[1]
+
+    def _refine_lag(self, best: tuple[float, dict], grid_s: list[float],
+                    sse: Callable[[dict], float]) -> tuple[float, dict]:
+        """The whole-sample lag of lowest training SSE strictly between the grid neighbours
+        (same sign) of the grid's best lag: a sensor late by 20 ms on a grid of 18 and 25 ms
+        leaves 2 ms of the target's slope in the residual (measured: 0.01 Nm on 0.03 Nm)."""
+        lag = best[1]["lag_s"]
+        dt = float(np.median(np.diff(self.train.t_s))) if len(self.train) > 1 else 0.0
+        if not dt > 0.0:
+            return best
+        same = sorted(abs(g) for g in grid_s if g * lag > 0.0)
+        i = same.index(abs(lag))
+        lo_s = same[i - 1] if i > 0 else 0.0
+        hi_s = same[i + 1] if i + 1 < len(same) else abs(lag)
+        sign = 1.0 if lag > 0 else -1.0
+        for k in range(int(math.floor(lo_s / dt)) + 1, int(math.ceil(hi_s / dt))):
+            cand = sign * k * dt
+            if abs(abs(cand) - abs(lag)) < 0.5 * dt:
+                continue
+            e = sse({"lag_s": cand})
+            if e < best[0]:
+                best = (e, {"lag_s": cand})
+        return best
 
     def describe(self, eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float) -> dict | None:
         if not eff.empirical or eff.knots is None:
