@@ -70,13 +70,7 @@ SIGNAL = {
 }
 
 #: measured shortfalls (see the module docstring)
-SHORT: dict[str, str] = {
-    "eccentric_input": "measured 2026-11-26: selected pretension_relaxation (time) first, then position_friction "
-                       "and load_friction (baseline 0.080 Nm held-out). The position form is the right mechanism "
-                       "but a run-time capacity change explains as much on 15 s runs",
-    "direction_asymmetry": "measured 2026-11-26: baseline 0.200 Nm held-out, not traced to velocity with a 30 % "
-                           "cut; no catalogued form is direction-dependent",
-}
+SHORT: dict[str, str] = {}
 
 
 @lru_cache(maxsize=None)

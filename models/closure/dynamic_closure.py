@@ -71,9 +71,10 @@ N_BOOT_DYN = 2000
 N_EMPIRICAL = 6
 #: knots of the trace's curves
 TRACE_KNOTS = 12
-#: fresh baseline fits on the realigned channels when a lag is selected (the lag searched
-#: again on each)
-REALIGN_ROUNDS = 2
+#: at most this many fresh baseline fits on the realigned channels when a lag is selected
+#: (the lag searched again on each, until it repeats; measured on the torsional unit with
+#: a 20 ms late sensor: 13 -> 17 -> 19 -> 20 ms, the baseline's damping absorbing the rest)
+REALIGN_ROUNDS = 5
 
 Progress = Callable[[int, int, str], None]
 
@@ -127,6 +128,14 @@ def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict
     return out
 
 
+def gain_signals(ds: DynamicSetup, train: Signals) -> tuple[str, ...]:
+    """Signals offered as a drive-gain curve: the input pulley's angle, in the testbed form
+    (tau_in drives; q_in measured but not driving) -- see :mod:`capstan.models.closure.dynamic_effects`."""
+    if ds.fit.spec.form == DrivingForm.TESTBED and train.q_in_rad is not None and "q_in" not in ds.excluded:
+        return ("q_in",)
+    return ()
+
+
 def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Progress | None = None,
                    step0: int = 0, total: int = 0) -> tuple[TargetResult, int]:
     """Greedy closure with the effects inside the simulation (module docstring).
@@ -139,7 +148,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
     trace = residual_trace(ds, train, test)
     emp = [d["signal"] for d in trace][:N_EMPIRICAL]
-    remaining = catalogue(train, refs, ds.excluded, emp)
+    remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train))
     labels = test_blocks(test)
     current = JointFit(np.array(list(fit.params.values())))
     yt, pred_t = ds.y_test_Nm, ds.pred_test_Nm

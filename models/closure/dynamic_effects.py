@@ -12,7 +12,17 @@ speed_viscous          velocity      drag C2 v |v| in the slip law
 sensor_latency         latency       the target measured lag late (lag < 0: the drive late)
 empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): piecewise-linear
                                      curves over knots at the training quantiles of x
+empirical:q_in         q_in          drive x (1 + e(q_in)), e piecewise linear over the input
+                                     pulley's angle with its training mean removed (testbed
+                                     form: the drive is rho tau_in)
 =====================  ============  ===================================================
+
+``empirical:q_in`` describes what no catalogued form has: a transmitted drive torque that
+varies with the input pulley's angle (an eccentric or out-of-round pulley, a radius that
+changes along the groove). It is a gain, so it holds in any output environment (an additive
+drive curve over an angle acts as a spring and is confounded with the environment), and
+its mean is removed, so a constant gain error (a load-cell gain) is not attributed to an
+angle.
 
 A shape (time constants, lag) is chosen on its grid with the baseline held (coefficients
 by Powell's derivative-free search), and the candidate is scored so; the selected effect
@@ -59,6 +69,8 @@ class InModelEffect:
     mods: ModsFn
     empirical: bool = False
     knots: np.ndarray | None = None
+    #: an empirical drive-gain curve (coefficients: the gain at the knots, mean removed)
+    drive_gain: bool = False
 
 
 @dataclass
@@ -93,9 +105,12 @@ def _merge(ms: list[Mods], n: int) -> Mods:
     return out
 
 
-def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: list[str]) -> list[InModelEffect]:
+def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: list[str],
+              drive_gain: tuple[str, ...] = ()) -> list[InModelEffect]:
     """The in-model candidates for ``train``: the catalogue (signals in ``excluded`` left
-    out) and an empirical curve for each signal in ``empirical``."""
+    out), an empirical curve for each signal in ``empirical`` and a centred drive-gain
+    curve for each signal in ``drive_gain`` (for the testbed form only: the drive there is
+    ``ratio_q * tau_in``)."""
     def dwell(s: Signals, sh: dict, c: np.ndarray) -> Mods:
         g = (1.0 - np.exp(-s.rest_s / sh["tau_age_s"])) * np.exp(-s.slide_rad / sh["s0_rad"])
         return Mods(cap_scale=1.0 + c[0] * g)
@@ -147,6 +162,24 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
         out.append(InModelEffect(f"empirical:{name}", (name,), tuple(f"g_{i}" for i in range(k)) +
                                  tuple(f"h_{i}" for i in range(k)), (-0.9,) * k + (-2.0,) * k, (5.0,) * k + (2.0,) * k,
                                  ({},), emp, empirical=True, knots=kn))
+    for name in drive_gain:
+        x = train.signal(name)
+        if name in excluded or x is None:
+            continue
+        kn = knots_for(x, N_KNOTS)
+        if kn is None:
+            continue
+        mean_h = hat_basis(x, kn).mean(axis=0)
+
+        def gain(s: Signals, sh: dict, c: np.ndarray, name: str = name, kn: np.ndarray = kn,
+                 mean_h: np.ndarray = mean_h) -> Mods:
+            xs = s.signal(name)
+            assert xs is not None
+            return Mods(drive_Nm=s.ratio_q * s.tau_in_Nm * ((hat_basis(xs, kn) - mean_h) @ c))
+
+        out.append(InModelEffect(f"empirical:{name}", (name,), tuple(f"e_{i}" for i in range(kn.size)),
+                                 (-0.5,) * kn.size, (0.5,) * kn.size, ({},), gain, empirical=True, knots=kn,
+                                 drive_gain=True))
     return out
 
 
@@ -273,6 +306,16 @@ class InModelCloser:
         if not eff.empirical or eff.knots is None:
             return None
         k = eff.knots.size
+        if eff.drive_gain:
+            sig = eff.depends_on[0]
+            d = describe_curve(sig, eff.knots, np.concatenate([coef, np.zeros(k)]), unit="rad")
+            d["part"] = "gain of the drive torque"
+            d["text"] = (f"the drive torque reaching the cable varies with {sig}: gain {d['trend'].replace('Nm per', 'per')}, "
+                         f"peak-to-peak {100 * d['peak_to_peak_Nm']:.3g} % (no catalogued form explains it)")
+            d["peak_to_peak_gain"] = d.pop("peak_to_peak_Nm")
+            d["knots"] = eff.knots.tolist()
+            d["curve"] = coef.tolist()
+            return d
         d = describe_curve(eff.depends_on[0], eff.knots, np.concatenate([coef[k:] * drive_Nm, coef[:k] * tau_fc_Nm]))
         d["knots"] = eff.knots.tolist()
         d["curve"] = (coef[k:] * drive_Nm).tolist() + (coef[:k] * tau_fc_Nm).tolist()
