@@ -310,7 +310,8 @@ class InModelCloser:
             sig = eff.depends_on[0]
             d = describe_curve(sig, eff.knots, np.concatenate([coef, np.zeros(k)]), unit="rad")
             d["part"] = "gain of the drive torque"
-            d["text"] = (f"the drive torque reaching the cable varies with {sig}: gain {d['trend'].replace('Nm per', 'per')}, "
+            d["trend"] = d["trend"].replace("Nm per", "per")     # a gain: dimensionless per rad
+            d["text"] = (f"the drive torque reaching the cable varies with {sig}: gain {d['trend']}, "
                          f"peak-to-peak {100 * d['peak_to_peak_Nm']:.3g} % (no catalogued form explains it)")
             d["peak_to_peak_gain"] = d.pop("peak_to_peak_Nm")
             d["knots"] = eff.knots.tolist()
