@@ -98,3 +98,19 @@ def test_the_drive_gain_over_the_pulley_angle_carries_no_constant_gain(late_runs
     # a gain: zero where the drive torque is zero, proportional to it elsewhere
     g = ramp / np.where(np.abs(train.tau_in_Nm) > 0.5, train.tau_in_Nm, np.nan)
     assert np.nanmax(np.abs(g)) <= 0.1 + 1e-12      # within the span of the coefficients
+
+
+def test_the_direction_curve_scales_the_capacity_by_the_sign_of_the_motion(late_runs) -> None:
+    train, _ = late_runs
+    assert not any(e.name == "empirical:direction" for e in catalogue(train, Refs(0.0, 1.0, 1.0, 1.0), {}, []))
+    eff = next(e for e in catalogue(train, Refs(0.0, 1.0, 1.0, 1.0), {}, ["velocity"])
+               if e.name == "empirical:direction")
+    assert eff.depends_on == ("velocity",) and eff.empirical
+    cap = eff.mods(train, {}, np.array([0.3])).cap_scale
+    assert cap is not None
+    fast = np.abs(train.dq_out_rad_s) > 10.0 * train.v_rest_rad_s
+    assert np.any(fast & (train.dq_out_rad_s > 0)) and np.any(fast & (train.dq_out_rad_s < 0))
+    np.testing.assert_allclose(cap[fast & (train.dq_out_rad_s > 0)], 1.3, atol=1e-3)
+    np.testing.assert_allclose(cap[fast & (train.dq_out_rad_s < 0)], 0.7, atol=1e-3)
+    d = InModelCloser.describe(eff, np.array([0.3]), 2.0, 1.0)
+    assert d is not None and "x 1.3 for dq_out > 0" in d["text"] and d["peak_to_peak_Nm"] == pytest.approx(1.2)

@@ -12,6 +12,9 @@ speed_viscous          velocity      drag C2 v |v| in the slip law
 sensor_latency         latency       the target measured lag late (lag < 0: the drive late)
 empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): piecewise-linear
                                      curves over knots at the training quantiles of x
+empirical:direction    velocity      capacity x (1 + d tanh(dq_out / 2 v_rest)): a friction
+                                     that differs with the direction of motion (offered with
+                                     the velocity curve, one coefficient)
 empirical:q_in         q_in          drive x (1 + e(q_in)), e piecewise linear over the input
                                      pulley's angle with its training mean removed (testbed
                                      form: the drive is rho tau_in)
@@ -162,6 +165,14 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
         out.append(InModelEffect(f"empirical:{name}", (name,), tuple(f"g_{i}" for i in range(k)) +
                                  tuple(f"h_{i}" for i in range(k)), (-0.9,) * k + (-2.0,) * k, (5.0,) * k + (2.0,) * k,
                                  ({},), emp, empirical=True, knots=kn))
+    if "velocity" in empirical and "velocity" not in excluded:
+        v_dir = 2.0 * train.v_rest_rad_s
+
+        def direction(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+            return Mods(cap_scale=1.0 + c[0] * np.tanh(s.dq_out_rad_s / v_dir))
+
+        out.append(InModelEffect("empirical:direction", ("velocity",), ("d",), (-0.9,), (0.9,), ({},), direction,
+                                 empirical=True))
     for name in drive_gain:
         x = train.signal(name)
         if name in excluded or x is None:
@@ -302,7 +313,15 @@ class InModelCloser:
                 best = (e, {"lag_s": cand})
         return best
 
-    def describe(self, eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float) -> dict | None:
+    @staticmethod
+    def describe(eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float) -> dict | None:
+        if eff.name == "empirical:direction":
+            d = float(coef[0])
+            return {"signal": "velocity", "part": "friction-like (depends on the motion direction)",
+                    "trend": f"capacity x {1 + d:.3g} moving positive, x {1 - d:.3g} moving negative",
+                    "period": None, "peak_to_peak_Nm": 2.0 * abs(d) * tau_fc_Nm,
+                    "text": f"friction depends on the direction of motion: capacity x {1 + d:.3g} for dq_out > 0, "
+                            f"x {1 - d:.3g} for dq_out < 0 (no catalogued form explains it)"}
         if not eff.empirical or eff.knots is None:
             return None
         k = eff.knots.size
