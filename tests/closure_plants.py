@@ -55,9 +55,14 @@ class Injection:
 def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 20.0, b_out: float = 2.0,
                     T0_N: float = 150.0, seed: int = 0, noise_Nm: float = 0.02, noise_dq: float = 1e-3,
                     dt_s: float = 1e-3, peak_Nm: float = 6.0, inject: Injection | None = None,
-                    declare_env: bool = True, source: str = "dist", block: int = 50) -> tuple[MeasurementTable, dict]:
+                    declare_env: bool = True, source: str = "dist", block: int = 50,
+                    settle_s: float = 0.2) -> tuple[MeasurementTable, dict]:
     """One testbed run of the distributed model with the four fixture tensions as extra
     channels (T_up_in, T_up_out, T_lo_out, T_lo_in), noise on the measured channels.
+
+    The recording starts on a rig at rest: the model (built out of equilibrium: its output
+    moves at -0.3 rad/s at the first sample) first settles for ``settle_s`` holding the
+    run's first drive torque, unrecorded, as a rig does before its recording starts.
 
     Returns (table, truth) where truth holds the noise-free torques.
     """
@@ -70,6 +75,10 @@ def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 
     inj = inject or Injection()
     if inj.b_node is not None:
         model.b_node_Ns_m[:] = inj.b_node
+    n_pre = int(round(settle_s / dt_s))
+    if n_pre > 0:
+        t_pre = np.arange(-n_pre, 1) * dt_s
+        model.simulate(t_pre, np.full(t_pre.shape, u[0]), adaptive=True, rtol=1e-4, record_tensions=False)
     if inj.mu is None and inj.u is None and inj.creep is None:
         res = model.simulate(t, u, adaptive=True, rtol=1e-4)
         tin, tout, qin, qout, dqo, fix = (res.tau_in_Nm, res.tau_out_Nm, res.q_in_rad, res.q_out_rad,

@@ -1,6 +1,7 @@
 """Evidence from another model family: ``capstan close`` on testbed runs of the distributed
 model (N = 12, double-bend non-uniform curvature, eq-23 pretension field, noise 0.02 Nm on
-the torques and 1e-3 rad/s on dq_out, all four fixture tensions as channels), training and
+the torques and 1e-3 rad/s on dq_out, all four fixture tensions as channels, recorded from
+a plant at rest: the model settles before the recording starts), training and
 held-out runs in different environments (k_out 20 / 35 Nm/rad), with effects injected
 into *that* physics in forms other than the closure catalogue's (tests/closure_plants.py):
 
@@ -69,15 +70,7 @@ SIGNAL = {
 }
 
 #: measured shortfalls (see the module docstring)
-SHORT: dict[str, str] = {
-    "eccentric_input": "measured 2026-11-26: selected pretension_relaxation (time) first, then position_friction "
-                       "and load_friction (baseline 0.080 Nm held-out). The position form is the right mechanism "
-                       "but a run-time capacity change explains as much on 15 s runs",
-    "late_tau_out": "measured 2026-11-26: traced to sensor_latency first (right), held-out 0.0473 -> 0.0346 Nm "
-                    "(-26.7 %, bar 30 %); the clean floor of these runs is 0.025-0.028 Nm",
-    "direction_asymmetry": "measured 2026-11-26: baseline 0.200 Nm held-out, not traced to velocity with a 30 % "
-                           "cut; no catalogued form is direction-dependent",
-}
+SHORT: dict[str, str] = {}
 
 
 @lru_cache(maxsize=None)
@@ -107,3 +100,17 @@ def test_injected_effect_is_traced_to_its_signal_and_cuts_heldout_error(effect: 
     assert r.selected, f"{effect}: nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
     assert set(r.selected[0].depends_on) & SIGNAL[effect], [(c.effect, c.depends_on) for c in r.selected]
     assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
+
+
+def main() -> None:
+    """Print each case's figures (``python tests/test_closure_families.py``): held-out RMSE
+    before and after, and the selected effects in order."""
+    for effect in ["none", *sorted(SIGNAL)]:
+        r = run(effect).targets[Target.TAU_OUT]
+        cut = 1.0 - r.rmse_after_Nm / r.rmse_before_Nm
+        sel = ", ".join(f"{c.effect} ({'/'.join(c.depends_on)})" for c in r.selected) or "nothing"
+        print(f"{effect:22s} {r.rmse_before_Nm:.4f} -> {r.rmse_after_Nm:.4f} Nm ({-100 * cut:+.1f} %)  selected: {sel}")
+
+
+if __name__ == "__main__":
+    main()

@@ -5,7 +5,9 @@ The closure attributes a residual to these signals (names as in ``depends_on``):
 ``position`` (q_out), ``dwell`` (how long the joint rested before its current motion;
 grows while it rests), ``time`` (session time since the run started), ``load``
 (transmitted torque tau_in), ``deflection`` (q_in - rho q_out), ``tension``
-(mean measured cable tension) and every extra data channel by its own name.
+(mean measured cable tension) and every extra data channel by its own name. ``q_in`` (the
+input pulley's angle) can be asked for by name but is not in :meth:`Signals.available`
+(the dynamic closure offers it as a drive-gain curve only).
 
 Several runs are concatenated into one :class:`Signals`; ``run_id`` tells them apart so
 that time shifts and derivatives never cross a run boundary.
@@ -139,7 +141,8 @@ class Signals:
         """The candidate signal called ``name`` (see module docstring), or None if absent."""
         table = {"velocity": self.dq_out_rad_s, "acceleration": self.ddq_out_rad_s2,
                  "position": self.q_out_rad, "dwell": self.rest_s, "time": self.t_s,
-                 "load": self.tau_in_Nm, "deflection": self.deflection_rad, "tension": self.tension_N}
+                 "load": self.tau_in_Nm, "deflection": self.deflection_rad, "tension": self.tension_N,
+                 "q_in": self.q_in_rad}
         if name in table:
             return table[name]
         return self.extras.get(name)
