@@ -13,11 +13,9 @@ import pytest
 
 from capstan.models.closure import windows
 from capstan.models.closure.effects import Target
-from capstan.models.closure.pipeline import ClosureResult, close
-from capstan.models.closure.signals import signals_from_tables
+from capstan.models.closure.pipeline import ClosureResult
 
-from closure_plants import distributed_run
-from test_closure_families import INJECT, SECONDS, SIGNAL
+from test_closure_families import SIGNAL, close_runs
 
 pytestmark = pytest.mark.slow
 
@@ -34,11 +32,8 @@ def long_path(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _close(effect: str) -> ClosureResult:
-    inj = INJECT[effect]
-    tr, _ = distributed_run(SECONDS, seed=1, k_out=20.0, b_out=2.0, source="train", inject=inj)
-    te, _ = distributed_run(SECONDS, seed=2, k_out=35.0, b_out=1.5, source="test", inject=inj)
-    sig = signals_from_tables([tr, te])
-    return close(sig.take(sig.run_id == 0), sig.take(sig.run_id == 1))
+    # not the cached run() of test_closure_families: its results may come from the short path
+    return close_runs(effect)
 
 
 def test_clean_runs_on_the_long_path(long_path: None) -> None:
