@@ -130,13 +130,13 @@ S_FAULT = 13            # latched fault bits (as float64, exact)
 S_FX = 14               # N_FX_STATE states of the learned effects (controller.learned_effects)
 S_QF = S_FX + N_FX_STATE  # blended joint angle for the gravity model [rad]
 S_FF_OUT = S_QF + 1       # 1.0 if the previous IMU rate was outside the rest gate's lower edge
+                          # (one debounce for the feedforward and the inertia compensation)
 S_V_PREV = S_FF_OUT + 1    # previous velocity sample [rad/s] (acceleration estimate)
 S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
 S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
-S_ACC_OUT = S_ACC_GATE + 1  # 1.0 if the previous IMU rate was outside the rest gate's lower edge (J_c gate)
-S_FC_OUT = S_ACC_OUT + 1   # the feedforward after its slew limit [Nm]
+S_FC_OUT = S_ACC_GATE + 1  # the feedforward after its slew limit [Nm]
 N_STATE = S_FC_OUT + 1
 
 
@@ -166,7 +166,6 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
-        st[S_ACC_OUT] = st[S_FF_OUT]
         st[S_FC_OUT] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
@@ -176,15 +175,16 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     q_g = qb * (st[S_QF] + r.dq_out_rad_s * cfg[C_DT]) + (1.0 - qb) * r.q_out_rad
     st[S_QF] = q_g
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
+    # the rest gate on dq_out, for the feedforward and the inertia compensation, on each new IMU
+    # sample: it opens only on the second sample in a row outside its lower edge, so one noise
+    # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
+    gate = 0.0
+    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0):
+        g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
+        st[S_FF_OUT] = 1.0 if g_now > 0.0 else 0.0
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
-        # the gate opens only on the second IMU sample in a row outside its lower edge: one
-        # noise sample beyond 4 sigma (once in ~16000) cannot kick the command, onset waits 2.5 ms
-        gate = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
-        out = 1.0 if gate > 0.0 else 0.0
-        if st[S_FF_OUT] == 0.0:
-            gate = 0.0
-        st[S_FF_OUT] = out
         fc = gate * friction_feedforward_Nm(
             r.dq_out_rad_s, cfg[C_FF_NM_PER_N] * t0, cfg[C_ZETA_S], cfg[C_ZETA_C], cfg[C_ETA_S], cfg[C_ALPHA_S],
             cfg[C_B_VIS])
@@ -225,12 +225,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     if ff_motor:
         tau_raw += tau_fc
     if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
-        if r.imu_new != 0:  # g: the feedforward's rest gate on the joint rate (0 at rest: no gyro noise),
-            # opening, as the feedforward's, only on the second sample in a row outside its lower edge:
-            # one gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample
-            g_acc = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
-            st[S_ACC_GATE] = g_acc if st[S_ACC_OUT] != 0.0 else 0.0
-            st[S_ACC_OUT] = 1.0 if g_acc > 0.0 else 0.0
+        if r.imu_new != 0:  # g: the feedforward's debounced rest gate on the joint rate (0 at rest: one
+            # gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample)
+            st[S_ACC_GATE] = gate
         if cfg[C_ACC_LINK] != 0.0:
             st[S_ACC_N] += 1.0
             if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
