@@ -222,37 +222,36 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                 t0 = time.perf_counter()
                 shape, jf, imp_train = long_run.candidate(current, eff)
                 _tick(ds, "screen", t0)
-            else:
-                shape = closer.best_shape(current, eff)
-                jf = closer.refit(current, eff, shape, base_free=False)
-            screened = False
-            if long_run is not None:
                 t0 = time.perf_counter()
                 pt_full = long_run.held_out(jf, imp_train)
                 _tick(ds, "held-out", t0)
                 screened = pt_full is None
-                pt = pt_full if pt_full is not None else pred_t
+                pt = pred_t if pt_full is None else pt_full
             else:
+                shape = closer.best_shape(current, eff)
+                jf = closer.refit(current, eff, shape, base_free=False)
                 pt = closer.predict(jf)
+                screened = False
             r_after = yt - pt
             coef = jf.effects[-1][2]
             tau_fc = float(jf.base[names.index("tau_fc_Nm")])
-            if not screened:
+            if screened:    # not scored: it does not help even on the training windows it was fitted on
+                rmse = max_err = imp = lo = math.nan
+                significant = False
+            else:
                 # Bonferroni over the round's candidates: with every signal tried as an empirical
                 # curve, 5 % per candidate would let one of them through on clean data by chance
                 imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN,
                                           alpha=ALPHA / len(remaining))
-                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
-                                 _named(eff, shape, coef, tau_fc, refs), _rmse(r_after),
-                                 float(np.max(np.abs(r_after))), imp, lo,
-                                 bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL)))
-                cand.held_out_samples = len(r_after)
-            else:      # not scored: it does not help even on the training windows it was fitted on
-                cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
-                                 _named(eff, shape, coef, tau_fc, refs), math.nan, math.nan, math.nan, math.nan,
-                                 False)
+                rmse, max_err = _rmse(r_after), float(np.max(np.abs(r_after)))
+                significant = bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL))
+            cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
+                             _named(eff, shape, coef, tau_fc, refs), rmse, max_err, imp, lo, significant)
+            if screened:
                 cand.screened_out = (f"screened out: {100 * imp_train:.1f} % lower RMSE on the training windows "
                                      f"(< {100 * SCREEN_MIN:.1f} %)")
+            else:
+                cand.held_out_samples = len(r_after)
             cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)
