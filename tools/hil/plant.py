@@ -19,8 +19,9 @@ Started by ``capstan hil`` (``python -m capstan.tools.hil.plant --config hil.yam
 Protocol with the parent on stdout: one JSON line once ready
 ``{"channel", "imu_port", "load_cells_port", "pid"}``; one JSON line of statistics at the
 end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects).
-It stops on SIGTERM, when its parent dies, or on a plant error (cable slack,
-integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
+It stops on SIGTERM, :data:`ORPHAN_GRACE_S` after its parent dies (a real rig outlives a
+killed daemon: the drive's own heartbeat watch must get to act first), or on a plant error
+(cable slack, integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
 """
 
 from __future__ import annotations
@@ -51,6 +52,10 @@ from capstan.tools.hil.hand import Hand, HandSettings
 log = logging.getLogger("capstan.hil_plant")
 
 EXIT_PLANT_ERROR = 4
+#: how long the simulated rig keeps running after the daemon is gone [s]: longer than any
+#: consumer heartbeat time a config may set (motor.consumer_timeout_s ≤ 1 s), so the drive's
+#: own watch acts first, as on a rig
+ORPHAN_GRACE_S = 1.5
 
 
 @dataclass(frozen=True)
@@ -211,6 +216,7 @@ class HilPlant:
         self.lost_s = 0.0
         cpu0 = process_cpu_s()
         wall0 = time.monotonic()
+        orphan_since_s: float | None = None
         while not self.stop:
             wake, _late = sl.wait()
             due_ns = (wake - t0) - sim_ns
@@ -223,9 +229,13 @@ class HilPlant:
             self.cycle(dt_ns * 1e-9, wake * 1e-9)
             self.step_us[self.steps % len(self.step_us)] = (time.monotonic_ns() - a) * 1e-3
             self.steps += 1
-            if parent_pid and self.steps % 500 == 0 and os.getppid() != parent_pid:
-                log.warning("parent %d is gone; stopping the simulated rig", parent_pid)
-                break
+            if parent_pid and self.steps % 50 == 0 and os.getppid() != parent_pid:
+                if orphan_since_s is None:
+                    orphan_since_s = time.monotonic()
+                    log.warning("parent %d is gone; stopping the simulated rig in %.1f s",
+                                parent_pid, ORPHAN_GRACE_S)
+                elif time.monotonic() - orphan_since_s >= ORPHAN_GRACE_S:
+                    break
         n = min(self.steps, len(self.step_us))
         st = self.step_us[:n]
         wall = time.monotonic() - wall0
@@ -281,7 +291,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         stats, code = {"error": str(exc), "steps": plant.steps}, EXIT_PLANT_ERROR
     finally:
         plant.close()
-    print(json.dumps(stats), flush=True)
+    try:
+        print(json.dumps(stats), flush=True)
+    except BrokenPipeError:                     # the parent is gone and its pipe with it
+        log.warning("statistics not delivered (stdout closed): %s", json.dumps(stats))
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second failure at exit
     return code
 
 
