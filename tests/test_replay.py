@@ -13,6 +13,7 @@ from mcap.reader import make_reader
 
 from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
+from capstan.controller.law.fingerprint import law_fingerprint
 from capstan.controller.runtime.session_log import newest_log, open_session
 from capstan.controller.log.reader import read_log
 from capstan.controller.log.mcap_log import McapLog
@@ -151,6 +152,8 @@ def test_daemon_log_layout_has_every_field_and_replays_bit_exactly(tmp_path: Pat
     assert main(["replay", str(path), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["max_abs_dtau_m_Nm"] == 0.0 and rep["cycles_different"] == 0 and rep["cycles"] == len(recs)
+    # the log names the law that wrote it: this build's
+    assert data.meta["law_sha256"] == law_fingerprint() and rep["law_changed"] is False
 
 
 def test_replay_recomputes_every_step_output(run_log) -> None:
@@ -174,6 +177,28 @@ def test_tampered_log_is_detected(tmp_path: Path, run_log, capsys) -> None:
     rep = json.loads(capsys.readouterr().out)
     assert rep["cycles_different"] == 1 and rep["first_different_cycle"] == 1234
     assert 0 < rep["max_abs_dtau_m_Nm"] < 1e-12
+
+
+@pytest.mark.parametrize("logged_law, changed, says", [
+    (None, None, "does not record which control law"),
+    ("0" * 64, True, "written by a different control law"),
+    ("this build", False, "the control law is the same"),
+])
+def test_a_replay_that_differs_says_whether_the_law_changed(tmp_path: Path, run_log, capsys, caplog,
+                                                            logged_law, changed, says) -> None:
+    _, recs = run_log
+    bad = recs.copy()
+    bad["tau_m_cmd_Nm"][100] += 0.5
+    meta = {} if logged_law is None else {"law_sha256": law_fingerprint() if logged_law == "this build" else logged_law}
+    log = McapLog(tmp_path, "x", bad.dtype, yaml.safe_dump(CONFIG), first_path=tmp_path / "law.mcap",
+                  flush_interval_s=0, extra_meta=meta)
+    log.write_records(bad)
+    log.close()
+    assert main(["replay", str(tmp_path / "law.mcap"), "--json"]) == 1
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["cycles_different"] == 1 and rep["law_changed"] is changed
+    assert rep["law_sha256_replay"] == law_fingerprint()
+    assert says in caplog.text
 
 
 def test_override_writes_whatif_log_and_plot(tmp_path: Path, run_log, capsys) -> None:

@@ -105,6 +105,8 @@ class LogSession:
     :param on_writer_loss: ``"restart"`` (a new writer, a new file, the gap as an event)
         or ``"stop"`` (:meth:`supervise` reports LOST at the first death).
     :param max_writer_restarts: restarts allowed before the writer counts as LOST.
+    :param log_meta: more key -> text pairs for every file's ``capstan.log`` metadata record
+        (e.g. the law's fingerprint).
     :raises LogFormatError: if the dtype cannot be logged or a float32 field or quantum is invalid.
     :raises ValueError: on a zstd level out of 1..22, an unknown policy or a negative
         restart count.
@@ -117,7 +119,8 @@ class LogSession:
                  compression: str = "zstd", float32_fields: tuple[str, ...] = (),
                  zstd_level: int = LIVE_ZSTD_LEVEL, drop_fields: tuple[str, ...] = (),
                  on_writer_loss: str = "restart", max_writer_restarts: int = 3, keep_bytes: int = 0,
-                 float32_quanta: Mapping[str, float] | None = None) -> None:
+                 float32_quanta: Mapping[str, float] | None = None,
+                 log_meta: Mapping[str, str] | None = None) -> None:
         # fail here, not in the writer
         build_layout(stored_dtype(np.dtype(record_dtype), tuple(drop_fields)), "capstan.Cycle",
                      tuple(float32_fields), float32_quanta)
@@ -152,7 +155,8 @@ class LogSession:
         if stale:
             _log.warning("removed %d shared-memory ring(s) of dead processes: %s", len(stale),
                          ", ".join(p.name for p in stale))
-        self.cycle = LogRing.create(record_dtype, capacity, meta={"config_yaml": config_yaml})
+        self.cycle = LogRing.create(record_dtype, capacity, meta={"config_yaml": config_yaml,
+                                                                       "log_meta": dict(log_meta or {})})
         self.events = LogRing.create(EVENT_DTYPE, 256)
         self.stats = LogRing.create(stats_dtype, 64) if stats_dtype is not None else None
         self.meta = LogRing.create(META_DTYPE, 8)

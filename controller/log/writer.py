@@ -94,7 +94,8 @@ def run_writer(cycle: LogRing, out_dir: str | Path, events: LogRing | None = Non
                    rotate_size_bytes=rotate_size_bytes, rotate_time_s=rotate_time_s,
                    flush_interval_s=flush_interval_s, compression=compression,
                    float32_fields=float32_fields, zstd_level=zstd_level, drop_fields=drop_fields,
-                   keep_bytes=keep_bytes, float32_quanta=float32_quanta)
+                   keep_bytes=keep_bytes, float32_quanta=float32_quanta,
+                   extra_meta={str(k): str(v) for k, v in dict(cycle.meta.get("log_meta", {})).items()})
     hist = _History(cycle.dtype, fault_history_n)
     cycle.set_consumer_ready()
     producer = parent_pid or cycle.producer_pid

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
+from capstan.controller.law.fingerprint import law_fingerprint
 from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS, LOG_FLOAT32_QUANTA
 from capstan.controller.runtime.link_report import LINK_STATS_FIELDS
 from capstan.controller.runtime.timing import WindowReport
@@ -144,7 +145,8 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
                          float32_fields=f32, drop_fields=drop, on_writer_loss=on_writer_loss,
                          max_writer_restarts=max_writer_restarts, rotate_size_bytes=int(rotate_size_MB * 1e6),
                          rotate_time_s=rotate_age_s, keep_bytes=int(keep_newest_GB * 1e9),
-                         float32_quanta={f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in f32})
+                         float32_quanta={f: q for f, q in LOG_FLOAT32_QUANTA.items() if f in f32},
+                         log_meta={"law_sha256": law_fingerprint()})
     session.start()
     return session
 

@@ -2,7 +2,8 @@
 the logged measurements.
 
 With the logged config the replayed commands must equal the logged ones bit for bit;
-the command reports max |dtau_m| (0 expected) and exits 1 otherwise. With an override
+the command reports max |dtau_m| (0 expected) and exits 1 otherwise, saying whether the
+control law changed since the log was written (the log's ``law_sha256`` against this build's). With an override
 (a YAML mapping merged key by key over the logged config) it writes a what-if log and
 a plot. The replay is open loop: the plant does not react to the what-if commands, the
 logged measurements are fed unchanged.
@@ -24,6 +25,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from capstan.controller.law.fingerprint import UNAVAILABLE, law_fingerprint
 from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import DataFormatError
 from capstan.tools.offline.replay import build_controller, merge_config, replay_records
@@ -126,12 +128,17 @@ def run(args: argparse.Namespace) -> int:
         "read_cpu_s": read_cpu_s, "step_cpu_s": step_cpu_s,
         "speed_x_realtime_cpu": (duration_s / (read_cpu_s + step_cpu_s)
                                  if read_cpu_s + step_cpu_s > 0 else None),
+        # which control law wrote the log and which replays it (None: the log does not say)
+        "law_sha256_logged": data.meta.get("law_sha256"), "law_sha256_replay": law_fingerprint(),
     }
+    report["law_changed"] = (None if not report["law_sha256_logged"] or UNAVAILABLE in
+                             (report["law_sha256_logged"], report["law_sha256_replay"])
+                             else report["law_sha256_logged"] != report["law_sha256_replay"])
     if override is not None:
         out = Path(args.out) if args.out else paths[0].with_name(paths[0].stem + "_whatif.mcap")
         mlog = McapLog(out.parent, out.stem, res.replayed.dtype, yaml.safe_dump(cfg, sort_keys=False),
                        flush_interval_s=0, first_path=out,
-                       extra_meta={"whatif_of": str(paths[0]),
+                       extra_meta={"whatif_of": str(paths[0]), "law_sha256": law_fingerprint(),
                                    "override_yaml": yaml.safe_dump(override, sort_keys=False)})
         mlog.write_records(res.replayed)
         mlog.close()
@@ -150,10 +157,28 @@ def run(args: argparse.Namespace) -> int:
         if report["speed_x_realtime"]:
             print(f"read {read_s:.3f} s + step {res.wall_s:.3f} s = {report['speed_x_realtime']:.0f}x "
                   f"real time (plus {build_s:.2f} s controller build/warm-up, {decoder_load_s:.2f} s decoder load)")
+        if report["law_changed"] is not None:
+            which = "changed since the log was written" if report["law_changed"] else "the one that wrote the log"
+            print(f"control law: {which} (law_sha256 {report['law_sha256_replay'][:12]})")
         for key in ("whatif_log", "plot"):
             if key in report:
                 print(f"{key.replace('_', ' ')}: {report[key]}")
     if override is None and res.n_different:
-        _log.error("replay with the logged config is not bit-exact: %d cycles differ", res.n_different)
+        _log.error("replay with the logged config is not bit-exact: %d cycles differ; %s",
+                   res.n_different, law_verdict(report["law_sha256_logged"], report["law_sha256_replay"]))
         return 1
     return 0
+
+
+def law_verdict(logged: str | None, replay: str) -> str:
+    """What a replay that is not bit-exact means, from the law fingerprints of the log and of
+    this build (:func:`capstan.controller.law.fingerprint.law_fingerprint`)."""
+    if not logged or logged == UNAVAILABLE or replay == UNAVAILABLE:
+        return ("the log does not record which control law wrote it (law_sha256), so a law "
+                "change since cannot be told from an altered log")
+    if logged != replay:
+        return (f"the log was written by a different control law (law_sha256 {logged[:12]} in the "
+                f"log, {replay[:12]} here): the difference is the law's change; replay with the "
+                "capstan version that wrote the log to check the log itself")
+    return ("the control law is the same as the one that wrote the log (law_sha256 "
+            f"{logged[:12]}): the log's inputs or commands were altered, or replay is wrong")
