@@ -24,8 +24,6 @@ import math
 import signal
 import threading
 import time
-from dataclasses import asdict, dataclass, field
-from enum import IntEnum
 from typing import Any
 
 import numpy as np
@@ -33,12 +31,14 @@ import numpy as np
 from capstan.controller.runtime import realtime
 from capstan.controller.runtime.command_quality import CommandQuality
 from capstan.controller.runtime.config import DaemonConfig
+from capstan.controller.runtime.loop_checks import all_fresh, cpu_snapshot, limit_violation, rate_step_Nm, writer_is_lost
+from capstan.controller.runtime.run_summary import Phase, RunSummary
 from capstan.controller.runtime.link_report import device_links, fill_link_stats, link_status, link_summary
 from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, newest_log, open_session,
                                                     send_derivations, wire_capable)
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
-from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, process_cpu_s, shared_abs_sleep
+from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, shared_abs_sleep
 from capstan.drivers.interfaces import DeviceSet
 from capstan.models.common.errors import (ControlFaultError, DeviceLostError, DeviceTimeoutError, DriverError,
                                           HeartbeatLostError)
@@ -51,44 +51,6 @@ LIMIT_VIOLATION = int(FaultBits.LIMIT_VIOLATION)
 #: a wake-to-wake interval above this many periods before a fault is named in the fault text
 #: (the loop was not run: on a shared VM, a host stall stops the drive simulator too)
 STALL_PERIODS = 5
-
-
-class Phase(IntEnum):
-    """Where the loop is in its life cycle."""
-
-    ARMING = 0
-    RUNNING = 1
-    RAMPING = 2
-    STOPPED = 3
-    FAULTED = 4
-
-
-@dataclass
-class RunSummary:
-    """Outcome of one :meth:`Daemon.run` (JSON-friendly via :meth:`to_dict`)."""
-
-    cycles: int = 0
-    missed: int = 0
-    overruns: int = 0
-    faults: list[str] = field(default_factory=list)
-    dropped_log_records: int = 0
-    log_path: str | None = None
-    timing: dict[str, float] = field(default_factory=dict)
-    phase: str = Phase.STOPPED.name
-    threads: list[str] = field(default_factory=list)
-    cpu_s: dict[str, float] = field(default_factory=dict)
-    loop_wall_s: float = 0.0
-    #: wake-to-wake interval that ended at the faulted cycle [s] (0 without a fault); longer
-    #: than a sensor timeout, the process itself was not run (host stall), see :data:`STALL_PERIODS`
-    fault_gap_s: float = 0.0
-    #: serial link counters per device (good/bad frames, resyncs, bytes skipped, counter gaps)
-    links: dict[str, dict[str, int]] = field(default_factory=dict)
-    #: command quality over the running cycles (controller/runtime/command_quality.py)
-    command: dict[str, float] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain dict of all fields."""
-        return asdict(self)
 
 
 def build_devices(cfg: DaemonConfig) -> DeviceSet:
@@ -223,7 +185,7 @@ class Daemon:
         sl = DeadlineSleeper(L.period_s, L.busy_tail_s)
         stats = LoopStats(L.period_s, max(1, round(L.stats_interval_s / L.period_s)))
         self._cq = cq = CommandQuality(max(1, round(L.stats_interval_s / L.period_s)), L.period_s,
-                                       _rate_step_Nm(self.cfg, L.period_s))
+                                       rate_step_Nm(self.cfg, L.period_s))
         ping = note.ping_interval_s
         ping_ns = int(ping * 1e9) if ping else 0
         last_ping = 0
@@ -235,7 +197,7 @@ class Daemon:
         self.phase = phase
         arm_until_ns = time.monotonic_ns() + int(L.startup_timeout_s * 1e9)
         imu_t = lc_t = m_t = -math.inf
-        cpu0, wall0 = _cpu_snapshot(sink), time.monotonic()
+        cpu0, wall0 = cpu_snapshot(sink), time.monotonic()
         reason = ""
         cycle = 0
         prev_wake = sl.start() - sl.period_ns
@@ -282,7 +244,7 @@ class Daemon:
                 ext |= FaultBits.OVERRUN_STREAK
                 reason = reason or f"{sl.streak} consecutive late cycles (limit {streak_fault})"
             if phase != Phase.ARMING:
-                v = _limit_violation(r, lim)
+                v = limit_violation(r, lim)
                 if v:
                     ext |= LIMIT_VIOLATION
                     reason = reason or v
@@ -296,9 +258,9 @@ class Daemon:
             if phase == Phase.ARMING:
                 r["cmd_scale"] = scale = 0.0
                 tau = 0.0
-                if ext == 0 and _fresh(t_s, fresh_s, m_t, imu_t, lc_t):
+                if ext == 0 and all_fresh(t_s, fresh_s, m_t, imu_t, lc_t):
                     phase = self.phase = Phase.RUNNING
-                    cpu0, wall0 = _cpu_snapshot(sink), time.monotonic()
+                    cpu0, wall0 = cpu_snapshot(sink), time.monotonic()
                     note.ready("drive enabled, sensors healthy")
                     log.info("armed after %d cycles: drive enabled, sensors healthy", cycle)
                 elif ext == 0 and wake > arm_until_ns:
@@ -360,7 +322,7 @@ class Daemon:
                     line += "; links " + link_status(links)
                 log.info("%s", line)
                 note.status(line)
-                if _writer_lost(sink) and not writer_lost:
+                if writer_is_lost(sink) and not writer_lost:
                     writer_lost = self._stop = True
                     log.error("log writer lost (logging.on_writer_loss: %s); ramping torque to zero",
                               self.cfg.logging.on_writer_loss)
@@ -415,7 +377,7 @@ class Daemon:
 
     def _finish_summary(self, sl: DeadlineSleeper, stats: LoopStats, sink: LogSink,
                         cpu0: dict[str, float], wall0: float) -> None:
-        cpu1 = _cpu_snapshot(sink)
+        cpu1 = cpu_snapshot(sink)
         self.summary.cpu_s = {k: cpu1[k] - cpu0[k] for k in cpu1 if k in cpu0}
         self.summary.loop_wall_s = time.monotonic() - wall0
         self.summary.missed = sl.missed
@@ -458,54 +420,3 @@ class Daemon:
     def _restore_signals(old: dict[int, Any]) -> None:
         for sig, handler in old.items():
             signal.signal(sig, handler)
-
-
-def _writer_lost(sink: Any) -> bool:
-    """Supervise the log writer (restarts it by policy); True if it is lost for good."""
-    supervise = getattr(sink, "supervise", None)
-    return callable(supervise) and int(supervise()) == 2      # WriterHealth.LOST
-
-
-def _rate_step_Nm(cfg: DaemonConfig, period_s: float) -> float:
-    """The safety stage's rate clamp per cycle [Nm] (0 if the controller section is unreadable)."""
-    c = cfg.controller.get("safety", {}) if hasattr(cfg.controller, "get") else {}
-    try:
-        return float(c.get("dtau_max_Nm_s", 2000.0)) * period_s if hasattr(c, "get") else 0.0
-    except (TypeError, ValueError):
-        return 0.0
-
-
-def _cpu_snapshot(sink: Any) -> dict[str, float]:
-    """CPU seconds used so far by this process and by the log writer process (if any)."""
-    out = {"daemon": process_cpu_s()}
-    proc = getattr(sink, "proc", None)
-    if proc is not None and proc.poll() is None:
-        try:
-            out["log_writer"] = process_cpu_s(proc.pid)
-        except OSError:
-            pass
-    return out
-
-
-def _fresh(t_s: float, fresh_s: float, *stamps: float) -> bool:
-    """True if every time stamp is at most ``fresh_s`` old at ``t_s``."""
-    for st in stamps:
-        if not t_s - st <= fresh_s:
-            return False
-    return True
-
-
-def _limit_violation(r: Any, lim: Any) -> str:
-    """Readable description of the first violated limit, or "" (NaN never passes)."""
-    q = r["q_out_rad"]
-    if not lim.q_out_min_rad <= q <= lim.q_out_max_rad:
-        return f"q_out_rad {q:.4g} outside [{lim.q_out_min_rad}, {lim.q_out_max_rad}]"
-    if not abs(r["dq_out_rad_s"]) <= lim.dq_out_max_rad_s:
-        return f"|dq_out_rad_s| {r['dq_out_rad_s']:.4g} > {lim.dq_out_max_rad_s}"
-    if not abs(r["dq_m_rad_s"]) <= lim.dq_m_max_rad_s:
-        return f"|dq_m_rad_s| {r['dq_m_rad_s']:.4g} > {lim.dq_m_max_rad_s}"
-    for name in ("T_up_in_N", "T_up_out_N", "T_lo_out_N", "T_lo_in_N"):
-        T = r[name]
-        if not lim.tension_min_N <= T <= lim.tension_max_N:
-            return f"{name} {T:.4g} outside [{lim.tension_min_N}, {lim.tension_max_N}]"
-    return ""
