@@ -256,11 +256,12 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
-        if fb.inertia_comp_kg_m2 > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
-            raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
-                              f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "
-                              f"{prefix}.feedback.inertia_comp_kg_m2 > 0: the rest band also keeps the "
-                              f"differentiated gyro noise off the command at rest, got {ff.dead_band_rad_s}")
+        for key in ("inertia_comp_kg_m2", "deflection_damping_Nms_rad"):
+            if getattr(fb, key) > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
+                raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
+                                  f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "
+                                  f"{prefix}.feedback.{key} > 0: the rest band also keeps the gyro's "
+                                  f"noise off the command at rest, got {ff.dead_band_rad_s}")
         j_min = plant.motor_inertia_kg_m2 * (1.0 - stab.inertia_tolerance)
         what = "J_m (1 - inertia_tolerance)"
         if fb.acceleration_source == AccelerationSource.LINK:     # motor and link move together

@@ -54,6 +54,10 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0
+    c[_s.C_DEFL_B] = fb.deflection_damping_Nms_rad
+    c[_s.C_DEFL_ALPHA] = lowpass_alpha(fb.deflection_link_cutoff_hz, dt)
+    c[_s.C_DEFL_REF_ALPHA] = lowpass_alpha(fb.deflection_reference_cutoff_hz, dt)
+    c[_s.C_DEFL_K_INV] = 1.0 / p.stiffness_Nm_rad
     c[_s.C_I_LIM] = fb.integral_limit_Nm
     c[_s.C_G_ON] = 1.0 if cfg.gravity_enabled else 0.0
     c[_s.C_MGL] = cfg.m_g_l_Nm

@@ -34,6 +34,17 @@ class FeedbackGains:
     inertia_comp_kg_m2: float = 0.3
     acceleration_cutoff_hz: float = 5.0
     acceleration_source: AccelerationSource = AccelerationSource.LINK
+    #: damping of the transmission's deflection rate [Nm s/rad] (0 = off):
+    #: ``- deflection_damping_Nms_rad * (dq_m - (r_out/r_in) LP[g dq_out])`` on the command, dq_m the
+    #: drive's motor velocity (every cycle), dq_out the IMU rate (per sample, held) low-passed at
+    #: ``deflection_link_cutoff_hz`` [Hz] and gated at rest like the inertia compensation: it damps
+    #: the motor against the cable (the stick and sheath-stick modes) and is 0 in a steady motion.
+    #: The deflection the torque reference asks for is not braked: its rate
+    #: ``d/dt LP[tau_in_des - gravity] / plant.stiffness_Nm_rad`` (low-pass at
+    #: ``deflection_reference_cutoff_hz`` [Hz]) is subtracted (friction flips, torque reference)
+    deflection_damping_Nms_rad: float = 0.0
+    deflection_link_cutoff_hz: float = 20.0
+    deflection_reference_cutoff_hz: float = 2.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -42,7 +53,8 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
     :raises ConfigError: naming the key: unknown key, wrong type or out of range.
     """
     reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
-                       "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source"}, p)
+                       "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source",
+                       "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz"}, p)
     return FeedbackGains(
         get_float(c, "kp", p, fd.kp, min_value=0.0),
         get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
@@ -54,4 +66,10 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "acceleration_cutoff_hz", p, fd.acceleration_cutoff_hz, min_value=0.0,
                   min_exclusive=True, max_value=0.45 * nyq),
         AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
-                                      fd.acceleration_source.name.lower()).upper()])
+                                      fd.acceleration_source.name.lower()).upper()],
+        get_float(c, "deflection_damping_Nms_rad", p, fd.deflection_damping_Nms_rad, min_value=0.0,
+                  max_value=1e4),
+        get_float(c, "deflection_link_cutoff_hz", p, fd.deflection_link_cutoff_hz, min_value=0.0,
+                  min_exclusive=True, max_value=0.45 * nyq),
+        get_float(c, "deflection_reference_cutoff_hz", p, fd.deflection_reference_cutoff_hz, min_value=0.0,
+                  min_exclusive=True, max_value=0.45 * nyq))

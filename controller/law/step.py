@@ -34,6 +34,17 @@ Control law (per cycle, ``k``)::
                                    sample in a row outside it), on the filter's input so that the
                                    gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
+    both: tau_m -= b (dq_m - LP[g (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
+                                   deflection-rate damping
+                                   (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
+                                   velocity (every cycle), the link's velocity per IMU sample, held,
+                                   gated like J_c (at rest the link's rate is gyro noise: 0) and
+                                   low-passed (feedback.deflection_link_cutoff_hz); D the rate of the
+                                   reference low-passed (feedback.deflection_reference_cutoff_hz),
+                                   K_c plant.stiffness_Nm_rad. It damps the motor
+                                   against the cable (stick / sheath-stick modes, which a delayed kp
+                                   drives), is 0 in a steady motion and does not brake the deflection
+                                   the reference asks for (a load change along a stroke)
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -112,7 +123,11 @@ C_JC = 42               # inertia compensation J_c [kg m^2] (0 = off)
 C_ACC_ALPHA = 43        # pole of the acceleration low-pass
 C_ACC_LINK = 44         # 1.0 = link acceleration from the IMU rate, 0.0 = motor from dq_m
 C_FF_SLEW_STEP = 45     # largest change of the feedforward per cycle [Nm] (feedforward.max_rate_Nm_s x dt)
-N_CFG = 46              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_DEFL_B = 46           # damping of the deflection rate [Nm s/rad] (feedback.deflection_damping_Nms_rad; 0 = off)
+C_DEFL_ALPHA = 47       # pole of the low-pass on the link's velocity in it (feedback.deflection_link_cutoff_hz)
+C_DEFL_REF_ALPHA = 48   # pole of the low-pass on tau_in_des whose rate it subtracts (deflection_reference_cutoff_hz)
+C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection rate the reference asks for
+N_CFG = 50              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -137,7 +152,10 @@ S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samp
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
 S_FC_OUT = S_ACC_GATE + 1  # the feedforward after its slew limit [Nm]
-N_STATE = S_FC_OUT + 1
+S_DEFL_IN = S_FC_OUT + 1   # gated link velocity at the motor [rad/s], held between IMU samples
+S_DEFL_LINK = S_DEFL_IN + 1  # ... low-passed: the motor velocity the link's motion implies [rad/s]
+S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first cycle set it)
+N_STATE = S_DEFL_REF + 1
 
 
 @njit(cache=True)
@@ -167,6 +185,11 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
         st[S_FC_OUT] = 0.0
+        # a start in motion: the link-implied velocity starts where the link is (gated as below), so
+        # the damping does not kick by -b dq_m on the first cycle
+        st[S_DEFL_IN] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) * r.dq_out_rad_s / cfg[C_R_RATIO]
+        st[S_DEFL_LINK] = st[S_DEFL_IN]
+        st[S_DEFL_REF] = math.nan
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -179,7 +202,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # sample: it opens only on the second sample in a row outside its lower edge, so one noise
     # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
     gate = 0.0
-    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0):
+    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_DEFL_B] != 0.0):
         g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
         st[S_FF_OUT] = 1.0 if g_now > 0.0 else 0.0
@@ -240,6 +263,19 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
         tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+    if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
+        if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, gated at rest like J_c, low-passed)
+            st[S_DEFL_IN] = gate * r.dq_out_rad_s / cfg[C_R_RATIO]
+        v_link = lowpass_step(cfg[C_DEFL_ALPHA], st, S_DEFL_LINK, st[S_DEFL_IN])
+        # the deflection rate the reference asks for, d/dt LP[tau_in_des - gravity] / K: the gravity
+        # model's rate is m_g_l dq_out, positive feedback of the link's velocity that would undamp the
+        # free link (loop_model.deflection_reference_filter)
+        ref_in = tau_in_des - cfg[C_R_RATIO] * tau_g
+        if math.isnan(st[S_DEFL_REF]):
+            st[S_DEFL_REF] = ref_in
+        ref_prev = st[S_DEFL_REF]
+        v_ref = (lowpass_step(cfg[C_DEFL_REF_ALPHA], st, S_DEFL_REF, ref_in) - ref_prev) * cfg[C_DEFL_K_INV] / cfg[C_DT]
+        tau_raw -= cfg[C_DEFL_B] * (r.dq_m_rad_s - v_link - v_ref)
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
