@@ -256,7 +256,7 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
-        for key in ("inertia_comp_kg_m2", "deflection_damping_Nms_rad"):
+        for key in ("inertia_comp_kg_m2", "deflection_damping_Nms_rad", "rest_gate_cutoff_hz"):
             if getattr(fb, key) > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
                 raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
                                   f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "

@@ -58,6 +58,8 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_DEFL_ALPHA] = lowpass_alpha(fb.deflection_link_cutoff_hz, dt)
     c[_s.C_DEFL_REF_ALPHA] = lowpass_alpha(fb.deflection_reference_cutoff_hz, dt)
     c[_s.C_DEFL_K_INV] = 1.0 / p.stiffness_Nm_rad
+    c[_s.C_FBG_ON] = 1.0 if fb.rest_gate_cutoff_hz > 0.0 else 0.0
+    c[_s.C_FBG_ALPHA] = lowpass_alpha(fb.rest_gate_cutoff_hz, dt)
     c[_s.C_I_LIM] = fb.integral_limit_Nm
     c[_s.C_G_ON] = 1.0 if cfg.gravity_enabled else 0.0
     c[_s.C_MGL] = cfg.m_g_l_Nm

@@ -45,6 +45,12 @@ class FeedbackGains:
     deflection_damping_Nms_rad: float = 0.0
     deflection_link_cutoff_hz: float = 20.0
     deflection_reference_cutoff_hz: float = 2.0
+    #: 0: kp and the deflection damping always act. > 0: only while the joint moves (the
+    #: feedforward's debounced rest gate on dq_out, as for the inertia compensation), faded in and out
+    #: by a first-order low-pass at this cutoff [Hz]: at rest the command then carries neither the
+    #: load cells' noise x kp nor the encoder velocity's quantisation x b, and the loop at rest is
+    #: the kp = 0, b = 0 one (the start-up check covers both ends and the middle)
+    rest_gate_cutoff_hz: float = 0.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -54,7 +60,8 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
     """
     reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
                        "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source",
-                       "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz"}, p)
+                       "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz",
+                       "rest_gate_cutoff_hz"}, p)
     return FeedbackGains(
         get_float(c, "kp", p, fd.kp, min_value=0.0),
         get_float(c, "kd_s", p, fd.kd_s, min_value=0.0),
@@ -72,4 +79,5 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "deflection_link_cutoff_hz", p, fd.deflection_link_cutoff_hz, min_value=0.0,
                   min_exclusive=True, max_value=0.45 * nyq),
         get_float(c, "deflection_reference_cutoff_hz", p, fd.deflection_reference_cutoff_hz, min_value=0.0,
-                  min_exclusive=True, max_value=0.45 * nyq))
+                  min_exclusive=True, max_value=0.45 * nyq),
+        get_float(c, "rest_gate_cutoff_hz", p, fd.rest_gate_cutoff_hz, min_value=0.0, max_value=0.45 * nyq))

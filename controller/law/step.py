@@ -45,6 +45,9 @@ Control law (per cycle, ``k``)::
                                    against the cable (stick / sheath-stick modes, which a delayed kp
                                    drives), is 0 in a steady motion and does not brake the deflection
                                    the reference asks for (a load change along a stroke)
+    g_fb: 1, or with feedback.rest_gate_cutoff_hz > 0 the debounced rest gate low-passed at
+          that cutoff, on kp e and on the damping: at rest neither load-cell noise x kp nor the
+          encoder velocity's quantisation x b reaches the command
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -127,7 +130,9 @@ C_DEFL_B = 46           # damping of the deflection rate [Nm s/rad] (feedback.de
 C_DEFL_ALPHA = 47       # pole of the low-pass on the link's velocity in it (feedback.deflection_link_cutoff_hz)
 C_DEFL_REF_ALPHA = 48   # pole of the low-pass on tau_in_des whose rate it subtracts (deflection_reference_cutoff_hz)
 C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection rate the reference asks for
-N_CFG = 50              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_FBG_ON = 50           # 1.0 = kp and the deflection damping act only in motion (feedback.rest_gate_cutoff_hz > 0)
+C_FBG_ALPHA = 51        # pole of the low-pass that fades them in and out
+N_CFG = 52              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -155,7 +160,9 @@ S_FC_OUT = S_ACC_GATE + 1  # the feedforward after its slew limit [Nm]
 S_DEFL_IN = S_FC_OUT + 1   # gated link velocity at the motor [rad/s], held between IMU samples
 S_DEFL_LINK = S_DEFL_IN + 1  # ... low-passed: the motor velocity the link's motion implies [rad/s]
 S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first cycle set it)
-N_STATE = S_DEFL_REF + 1
+S_FBG_IN = S_DEFL_REF + 1  # rest gate of kp and the damping, held between IMU samples
+S_FBG = S_FBG_IN + 1       # ... low-passed: the factor on kp and b
+N_STATE = S_FBG + 1
 
 
 @njit(cache=True)
@@ -190,6 +197,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_DEFL_IN] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) * r.dq_out_rad_s / cfg[C_R_RATIO]
         st[S_DEFL_LINK] = st[S_DEFL_IN]
         st[S_DEFL_REF] = math.nan
+        st[S_FBG_IN] = 0.0
+        st[S_FBG] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -202,7 +211,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # sample: it opens only on the second sample in a row outside its lower edge, so one noise
     # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
     gate = 0.0
-    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_DEFL_B] != 0.0):
+    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_DEFL_B] != 0.0
+                           or cfg[C_FBG_ON] != 0.0):
         g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
         st[S_FF_OUT] = 1.0 if g_now > 0.0 else 0.0
@@ -227,11 +237,16 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_in_des = cfg[C_R_RATIO] * tau_out_des
 
     # ---- feedback
+    g_fb = 1.0          # the factor on kp and the deflection damping: 1, or the faded rest gate
+    if cfg[C_FBG_ON] != 0.0:
+        if r.imu_new != 0:
+            st[S_FBG_IN] = gate
+        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_FBG_IN])
     e = tau_in_des - tau_in
     deriv = -cfg[C_KD_A1] * st[S_D] - cfg[C_KD_B0] * (tau_in - st[S_TIN_PREV])
     st[S_D] = deriv
     st[S_TIN_PREV] = tau_in
-    fb = cfg[C_KP] * e + deriv
+    fb = g_fb * cfg[C_KP] * e + deriv
 
     # ---- torque loop
     d_hat = 0.0
@@ -275,7 +290,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             st[S_DEFL_REF] = ref_in
         ref_prev = st[S_DEFL_REF]
         v_ref = (lowpass_step(cfg[C_DEFL_REF_ALPHA], st, S_DEFL_REF, ref_in) - ref_prev) * cfg[C_DEFL_K_INV] / cfg[C_DT]
-        tau_raw -= cfg[C_DEFL_B] * (r.dq_m_rad_s - v_link - v_ref)
+        tau_raw -= g_fb * cfg[C_DEFL_B] * (r.dq_m_rad_s - v_link - v_ref)
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
