@@ -73,20 +73,9 @@ def build_controller(cfg: Mapping[str, Any]) -> Any:
     section = cfg.get("controller")
     if not isinstance(section, Mapping):
         raise ConfigError("controller", "missing from the config (the log stores none?)")
-    ctl = Controller(ControllerConfig.from_mapping(predates_deflection_damping(section)))
+    ctl = Controller(ControllerConfig.from_mapping(section))
     ctl.warmup()
     return ctl
-
-
-def predates_deflection_damping(section: Mapping[str, Any]) -> Mapping[str, Any]:
-    """A logged ``controller`` section as the loop ran it: a log written before the
-    deflection-rate damping existed stores every feedback key of its time but not
-    ``deflection_damping_Nms_rad``, and ran without it and without the rest gate on kp, which
-    the defaults now turn on; those two are set to 0 so such a log replays bit for bit."""
-    fb = section.get("feedback")
-    if not isinstance(fb, Mapping) or "deflection_damping_Nms_rad" in fb or "kp" not in fb:
-        return section
-    return merge_config(section, {"feedback": {"deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}})
 
 
 def replay_records(records: np.ndarray, ctl: Any, input_fields: tuple[str, ...],
