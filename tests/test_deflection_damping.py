@@ -16,7 +16,8 @@ from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, de
                                                deflection_reference_filter)
 from test_torque_loop import OLD_LOOP, _quiet, _run_step_physical
 
-#: the shipped loop's torque feedback without the rest gate (the linear loop the analysis has)
+#: the strongest torque feedback inside the margins (shipped: kp 0.75, b 60), without the rest gate
+#: (the linear loop the analysis has)
 SHIPPED_LINEAR = {"kp": 1.25, "deflection_damping_Nms_rad": 100.0, "deflection_link_cutoff_hz": 150.0,
                   "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "inertia_comp_kg_m2": 0.0}
 SHEATH_STICK = PlantPoint(3300.0, 0.51, 0.5)        # the grid point that limits the phase margin

@@ -165,10 +165,10 @@ def test_fast_motion_is_inertia_dominated_so_friction_compensation_trades_accel_
 
 
 def test_torque_feedback_with_deflection_damping_hides_most_of_the_motor(fast_delayed):
-    """kp 1.25 on tau_in, made possible in the delayed loop by the deflection-rate damping: the hand
+    """kp 0.75 on tau_in, made possible in the delayed loop by the deflection-rate damping: the hand
     feels about (J_m - J_c) / (1 + kp) of the motor instead of J_m - J_c, so in fast strokes (inertia
-    dominated) the tau_in tracking error and mean |tau_h| fall to well under half of the loop
-    before (distributed 10-node model, sensor noise, IMU 400 Hz, 2-cycle delay), with the margins met;
+    dominated) the tau_in tracking error and mean |tau_h| fall to about half of the loop before
+    (distributed 10-node model, sensor noise, IMU 400 Hz, 2-cycle delay), with the margins met;
     and friction compensation now lowers |tau_h| while the stroke slows down too (the smaller felt
     inertia no longer outweighs the friction)."""
     from capstan.controller.law.config import ControllerConfig

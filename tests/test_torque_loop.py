@@ -162,7 +162,7 @@ def test_lab_override_starts_them_and_says_why():
 
 def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     """kp alone (no damping) on the lightly damped plant misses the gain margin; the
-    deflection-rate damping makes kp 1.25 meet both (PM 48 deg at b 100), while a larger kp or
+    deflection-rate damping makes kp 1.25 meet both (PM 48 deg at b 100; shipped: kp 0.75, b 60), while a larger kp or
     more damping than the delay allows (its own crossover near b / J_m) misses the phase margin."""
     bad = ControllerConfig.from_mapping({"torque_loop": "pid", "feedback": {"kp": 0.5, "kd_s": 0.0, "ki_1_s": 0.15,
                                                                           "deflection_damping_Nms_rad": 0.0}})
@@ -170,7 +170,8 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
         check_margins(bad)
     assert check_margins(ControllerConfig.from_mapping({})).ok
     shipped = ControllerConfig.from_mapping({})
-    assert shipped.feedback.kp == 1.25 and shipped.feedback.deflection_damping_Nms_rad == 100.0
+    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 60.0
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {"kp": 1.25, "deflection_damping_Nms_rad": 100.0}})).ok
     for kp, b in ((1.5, 100.0), (1.25, 130.0)):       # PM 44.8 and 44.5 deg: just outside
         cfg = ControllerConfig.from_mapping({"feedback": {"kp": kp, "deflection_damping_Nms_rad": b}})
         with pytest.raises(ConfigError, match="phase margin"):

@@ -22,7 +22,7 @@ class AccelerationSource(IntEnum):
 class FeedbackGains:
     """C(s) on the tau_in error; ``ki_1_s`` only in the PID loop."""
 
-    kp: float = 1.25
+    kp: float = 0.75
     kd_s: float = 0.0
     derivative_cutoff_hz: float = 40.0
     ki_1_s: float = 0.15
@@ -42,7 +42,7 @@ class FeedbackGains:
     #: The deflection the torque reference asks for is not braked: its rate
     #: ``d/dt LP[tau_in_des - gravity] / plant.stiffness_Nm_rad`` (low-pass at
     #: ``deflection_reference_cutoff_hz`` [Hz]) is subtracted (friction flips, torque reference)
-    deflection_damping_Nms_rad: float = 100.0
+    deflection_damping_Nms_rad: float = 60.0
     deflection_link_cutoff_hz: float = 150.0
     deflection_reference_cutoff_hz: float = 2.0
     #: 0: kp and the deflection damping always act. > 0: only while the joint moves (the

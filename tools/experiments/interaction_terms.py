@@ -60,7 +60,7 @@ _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
 _PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
-    TermVariant("shipped", "feedforward + kp 1.25 + deflection damping + integral trim + inertia compensation"),
+    TermVariant("shipped", "feedforward + kp 0.75 + deflection damping + integral trim + inertia compensation"),
     TermVariant("no_deflection_damping", "deflection-rate damping off, kp kept",
                 extra={"feedback": {"deflection_damping_Nms_rad": 0.0}}),
     TermVariant("no_torque_feedback", "kp 0 and no deflection damping (the loop before)", extra={"feedback": _PREV}),
