@@ -34,12 +34,13 @@ Control law (per cycle, ``k``)::
                                    sample in a row outside it), on the filter's input so that the
                                    gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
-    both: tau_m -= b (dq_m - LP[g (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
+    both: tau_m -= g_fb b (dq_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
                                    deflection-rate damping
                                    (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
                                    velocity (every cycle), the link's velocity per IMU sample, held,
-                                   gated like J_c (at rest the link's rate is gyro noise: 0) and
-                                   low-passed (feedback.deflection_link_cutoff_hz); D the rate of the
+                                   low-passed (feedback.deflection_link_cutoff_hz); g' = 1 with the
+                                   rest gate g_fb below, else g (at rest the link's rate is gyro
+                                   noise: 0); D the rate of the
                                    reference low-passed (feedback.deflection_reference_cutoff_hz),
                                    K_c plant.stiffness_Nm_rad. It damps the motor
                                    against the cable (stick / sheath-stick modes, which a delayed kp
@@ -194,7 +195,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_FC_OUT] = 0.0
         # a start in motion: the link-implied velocity starts where the link is (gated as below), so
         # the damping does not kick by -b dq_m on the first cycle
-        st[S_DEFL_IN] = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) * r.dq_out_rad_s / cfg[C_R_RATIO]
+        g0 = 1.0 if cfg[C_FBG_ON] != 0.0 else rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        st[S_DEFL_IN] = g0 * r.dq_out_rad_s / cfg[C_R_RATIO]
         st[S_DEFL_LINK] = st[S_DEFL_IN]
         st[S_DEFL_REF] = math.nan
         st[S_FBG_IN] = 0.0
@@ -279,8 +281,11 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
         tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
     if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
-        if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, gated at rest like J_c, low-passed)
-            st[S_DEFL_IN] = gate * r.dq_out_rad_s / cfg[C_R_RATIO]
+        if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, low-passed). At rest the gyro's noise
+            # is kept off by g_fb; without it (rest_gate_cutoff_hz 0), by gating the link's rate like J_c. Not
+            # both: at a reversal the link passes the rest band while the motor still moves, and the gated
+            # link rate would step the term by b x dq_out (1.2 Nm in a slow HIL stroke)
+            st[S_DEFL_IN] = (1.0 if cfg[C_FBG_ON] != 0.0 else gate) * r.dq_out_rad_s / cfg[C_R_RATIO]
         v_link = lowpass_step(cfg[C_DEFL_ALPHA], st, S_DEFL_LINK, st[S_DEFL_IN])
         # the deflection rate the reference asks for, d/dt LP[tau_in_des - gravity] / K: the gravity
         # model's rate is m_g_l dq_out, positive feedback of the link's velocity that would undamp the
