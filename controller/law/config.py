@@ -16,7 +16,7 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
       feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
                                      # (the derivative acts on the measured tau_in only)
-        kp: 0.0                      # proportional gain on the tau_in error [Nm/Nm]
+        kp: 0.75                     # proportional gain on the tau_in error [Nm/Nm]
         kd_s: 0.0                    # derivative gain [Nm s/Nm]
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
@@ -24,6 +24,10 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         inertia_comp_kg_m2: 0.3      # + J_c x acceleration on the command (0 = off), gated at rest
         acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
         acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
+        deflection_damping_Nms_rad: 60.0      # - b (dq_m - link's - reference's deflection rate) (0 = off)
+        deflection_link_cutoff_hz: 150.0      # low-pass of the link's rate in it
+        deflection_reference_cutoff_hz: 2.0   # low-pass of tau_in_des (less gravity) before its rate
+        rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
