@@ -149,3 +149,33 @@ def test_no_braking_in_a_steady_motion_and_nothing_at_rest():
     d = run({**shipped, "kp": 0.0}, *ahead) - run({**off, "kp": 0.0}, *ahead)
     assert d[-1] == pytest.approx(-100.0 * 0.05, rel=1e-6)
     assert np.max(np.abs(np.diff(d))) < 0.1 * 100.0 * 0.05       # faded in, not a step
+
+
+def test_link_lag_compensation_is_the_steps_and_is_checked():
+    """``deflection_link_lag_compensation``: the link's velocity in the damping is led by
+    (1 / (2 pi f_l) + dt) x J_c's link acceleration. The analysis's path (H_l + lead A) is the step's
+    to rounding; it needs the link source; and the start-up check sees what it costs: with the shipped
+    kp 0.75 / b 60 and a 30 Hz link cutoff it misses the phase margin (43 deg, slip), kp 0.6 / b 50 meets it."""
+    from capstan.controller.law.feedback_config import deflection_link_lead_s
+    from capstan.controller.law.loop_model import acceleration_filter
+    from capstan.controller.law.stability import check_margins
+    from capstan.models.common.errors import ConfigError
+    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 30.0,
+                   "deflection_link_lag_compensation": True})
+    lead = deflection_link_lead_s(cfg)
+    assert lead == pytest.approx(1.0 / (2 * math.pi * 30.0) + 1e-3)
+    x = np.zeros(400)
+    x[5] = 1e-2
+    u = _pulse_run(cfg, "dq_out_rad_s", x)
+    hl, a = deflection_link_filter(cfg), acceleration_filter(cfg)
+    assert hl[0][0] == 0.0 and a[0][0] == 0.0          # the IMU hold's cycle, not there with the IMU every cycle
+    want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
+    assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
+    with pytest.raises(ConfigError, match="deflection_link_lag_compensation"):
+        ControllerConfig.from_mapping({"feedback": {"deflection_link_lag_compensation": True,
+                                                    "acceleration_source": "motor", "inertia_comp_kg_m2": 0.0}})
+    on = {"deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True}
+    with pytest.raises(ConfigError, match="phase margin"):
+        check_margins(ControllerConfig.from_mapping({"feedback": on}))
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {**on, "kp": 0.6,
+                                                                     "deflection_damping_Nms_rad": 50.0}})).ok

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import signal
 
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
+from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.ldo import (derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients,
                                         qpinv_filter_coefficients)
 
@@ -200,9 +201,11 @@ def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
 def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                   f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
-    input, ``L = z^-d (C P - J_c A P_v + b (P_v - H_l P_o))`` (the inertia compensation is
+    input, ``L = z^-d (C P - J_c A P_v + b (P_v - (H_l + lead A) P_o))`` (the inertia compensation is
     positive feedback of the acceleration, so it enters with a minus sign; the deflection-rate
-    damping ``b`` is negative feedback of the motor velocity less the link's, :func:`deflection_link_filter`)."""
+    damping ``b`` is negative feedback of the motor velocity less the link's, :func:`deflection_link_filter`,
+    led by ``lead`` (:func:`capstan.controller.law.feedback_config.deflection_link_lead_s`) times the link's
+    acceleration through J_c's filter ``A``)."""
     c = freq_response(controller_tf(cfg), f_hz, cfg.dt_s)
     loop = c * freq_response(plant_discrete(p, cfg.dt_s, delay_cycles), f_hz, cfg.dt_s)
     jc = cfg.feedback.inertia_comp_kg_m2
@@ -217,6 +220,9 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
         if p.slip:
             pvo = plant_discrete(p, cfg.dt_s, delay_cycles, plant_link_velocity_continuous(p))
             defl = defl - freq_response(_mul(deflection_link_filter(cfg), pvo), f_hz, cfg.dt_s)
+            lead = deflection_link_lead_s(cfg)      # + lead x the link's acceleration (J_c's filter A)
+            if lead != 0.0:
+                defl = defl - lead * freq_response(_mul(acceleration_filter(cfg), pvo), f_hz, cfg.dt_s)
         loop = loop + b * defl
     return c, loop
 
@@ -302,7 +308,8 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         QP = Q = _Block((np.array([0.0]), np.array([1.0])))
     ag, bg, cg = plant_state_space(p, cfg.dt_s)
     jc = fb.inertia_comp_kg_m2
-    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 else (np.array([0.0]), np.array([1.0])))
+    lead = deflection_link_lead_s(cfg)
+    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 or lead != 0.0 else (np.array([0.0]), np.array([1.0])))
     link = fb.acceleration_source == AccelerationSource.LINK
     v_index = (3 if p.slip else -1) if link else 1      # plant states (q_m, dq_m[, q_o, dq_o])
     b_defl = fb.deflection_damping_Nms_rad
@@ -337,7 +344,7 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc
         v_link, out[10] = Hl.step(xs[10], float(xs[0][3]) if p.slip else 0.0)
-        u -= b_defl * (float(xs[0][1]) - v_link)
+        u -= b_defl * (float(xs[0][1]) - v_link - lead * acc)
         if ldo:
             out[6] = np.array([u])      # the observer's u[k-1] is the applied command, J_c term included
         if d:

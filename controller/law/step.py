@@ -38,7 +38,8 @@ Control law (per cycle, ``k``)::
                                    deflection-rate damping
                                    (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
                                    velocity (every cycle), the link's velocity per IMU sample, held,
-                                   low-passed (feedback.deflection_link_cutoff_hz); g' = 1 with the
+                                   low-passed (feedback.deflection_link_cutoff_hz) plus its lag x the
+                                   link's acceleration (deflection_link_lag_compensation); g' = 1 with the
                                    rest gate g_fb below, else g (at rest the link's rate is gyro
                                    noise: 0); D the rate of the
                                    reference low-passed (feedback.deflection_reference_cutoff_hz),
@@ -133,7 +134,8 @@ C_DEFL_REF_ALPHA = 48   # pole of the low-pass on tau_in_des whose rate it subtr
 C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection rate the reference asks for
 C_FBG_ON = 50           # 1.0 = kp and the deflection damping act only in motion (feedback.rest_gate_cutoff_hz > 0)
 C_FBG_ALPHA = 51        # pole of the low-pass that fades them in and out
-N_CFG = 52              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_DEFL_LEAD = 52        # lead on the link's velocity in the damping [s] (0 = off): + lead x the link acceleration
+N_CFG = 53              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -264,7 +266,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
-    if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
+    if cfg[C_JC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
         if r.imu_new != 0:  # g: the feedforward's debounced rest gate on the joint rate (0 at rest: one
             # gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample)
             st[S_ACC_GATE] = gate
@@ -279,14 +281,18 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             st[S_V_PREV] = r.dq_m_rad_s
         # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
-        tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+        if cfg[C_JC] != 0.0:
+            tau_raw += cfg[C_JC] * acc
     if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
         if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, low-passed). At rest the gyro's noise
             # is kept off by g_fb; without it (rest_gate_cutoff_hz 0), by gating the link's rate like J_c. Not
             # both: at a reversal the link passes the rest band while the motor still moves, and the gated
             # link rate would step the term by b x dq_out (1.2 Nm in a slow HIL stroke)
             st[S_DEFL_IN] = (1.0 if cfg[C_FBG_ON] != 0.0 else gate) * r.dq_out_rad_s / cfg[C_R_RATIO]
-        v_link = lowpass_step(cfg[C_DEFL_ALPHA], st, S_DEFL_LINK, st[S_DEFL_IN])
+        # low-passed, and led by the low-pass's and the hold's lag times the link's acceleration (its S_ACC,
+        # gated at rest; feedback.deflection_link_lag_compensation)
+        v_link = lowpass_step(cfg[C_DEFL_ALPHA], st, S_DEFL_LINK, st[S_DEFL_IN]) + cfg[C_DEFL_LEAD] * st[S_ACC]
         # the deflection rate the reference asks for, d/dt LP[tau_in_des - gravity] / K: the gravity
         # model's rate is m_g_l dq_out, positive feedback of the link's velocity that would undamp the
         # free link (loop_model.deflection_reference_filter)
