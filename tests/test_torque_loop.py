@@ -171,12 +171,16 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     assert check_margins(ControllerConfig.from_mapping({})).ok
     shipped = ControllerConfig.from_mapping({})
     assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 60.0
-    assert check_margins(ControllerConfig.from_mapping({"feedback": {"kp": 1.25, "deflection_damping_Nms_rad": 100.0}})).ok
+    # the link's velocity at 150 Hz without the lag compensation, J_c 0.3
+    plain = {"deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3}
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.25,
+                                                                     "deflection_damping_Nms_rad": 100.0}})).ok
     for kp, b in ((1.5, 100.0), (1.25, 130.0)):       # PM 44.8 and 44.5 deg: just outside
-        cfg = ControllerConfig.from_mapping({"feedback": {"kp": kp, "deflection_damping_Nms_rad": b}})
+        cfg = ControllerConfig.from_mapping({"feedback": {**plain, "kp": kp, "deflection_damping_Nms_rad": b}})
         with pytest.raises(ConfigError, match="phase margin"):
             check_margins(cfg)
-    just_in = check_margins(ControllerConfig.from_mapping({"feedback": {"kp": 1.4, "deflection_damping_Nms_rad": 100.0}}))
+    just_in = check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.4,
+                                                                        "deflection_damping_Nms_rad": 100.0}}))
     assert 45.0 <= just_in.worst_phase_margin_deg < 47.0
 
 
@@ -300,7 +304,8 @@ def test_inertia_compensation_margins_and_its_limit():
     does not; without the gravity model (the link's full pendulum stiffness in slip) 0.2 does,
     0.3 does not; an amount at or above the lightest joint inertia is refused by name."""
     for jc, gravity, good in ((0.3, True, True), (0.34, True, False), (0.2, False, True), (0.3, False, False)):
-        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0},
+        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0,
+                                                          "deflection_link_lag_compensation": False},
                                              "gravity": {"enabled": gravity}})
         assert analyse(cfg).ok == good, (jc, gravity)
     ok = cfg
