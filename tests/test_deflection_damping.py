@@ -194,3 +194,20 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
         check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.3}}))
     rep = check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.2}}))
     assert rep.ok and rep.worst_phase_margin_deg > 48.0 and rep.worst_gain_margin_dB > 8.0
+
+
+def test_start_up_check_covers_the_faded_gains():
+    """kp and b fade to 0 at rest, so the loop at rest is the one without them. J_c 0.34 (link rate at
+    150 Hz, no lag compensation) meets the margins with kp and b on (PM 49.9 deg, GM 9.1 dB) but not at
+    rest (GM 5.7 dB, the free link's residual gravity mode in slip): refused, saying which fade fails."""
+    from capstan.controller.law.stability import analyse, check_margins
+    from capstan.models.common.errors import ConfigError
+    m = {"feedback": {"inertia_comp_kg_m2": 0.34, "deflection_link_cutoff_hz": 150.0,
+                      "deflection_link_lag_compensation": False}}
+    rep = analyse(ControllerConfig.from_mapping(m))
+    assert rep.all_stable and rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0
+    assert [f[0] for f in rep.faded] == [0.5, 0.0] and not rep.faded[1][3] and rep.faded[1][2] < 6.0
+    with pytest.raises(ConfigError, match="faded to x0"):
+        check_margins(ControllerConfig.from_mapping(m))
+    m["feedback"]["rest_gate_cutoff_hz"] = 0.0          # always on: no fade, nothing else to check
+    assert analyse(ControllerConfig.from_mapping(m)).faded == ()
