@@ -24,12 +24,17 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the gains tuned in lock-step (no delay): kp 5, kd 0.05, Q 10 Hz
 LOCKSTEP_LDO = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0},
                 "ldo": {"q_cutoff_hz": 10.0}}
+#: the shipped feedback before the deflection-rate damping: feedforward + integral trim + J_c, kp 0
+OLD_LOOP = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}
 NO_LIMITS = {"tau_max_Nm": 1e6, "tau_fault_Nm": 1e7, "dtau_max_Nm_s": 1e9, "dtau_fault_Nm_s": 1e10}
 
 
 def _quiet(m: dict) -> dict:
+    """No gravity, feedforward or limits; the feedback keys a test does not set are those of the
+    loop before the deflection-rate damping (kp 0, no damping, no rest gate on kp)."""
     m = copy.deepcopy(m)
     m.update({"gravity": {"enabled": False}, "feedforward": {"enabled": False}, "safety": NO_LIMITS})
+    m["feedback"] = {**OLD_LOOP, **m.get("feedback", {})}
     return m
 
 
@@ -79,7 +84,7 @@ def test_controller_transfer_function_is_the_step(m):
     (LOCKSTEP_LDO, PlantPoint(2640.0, 0.73, 0.5), 2, True),     # sheath stick, real delay: rings
     (LOCKSTEP_LDO, PlantPoint(2640.0, 0.73, 0.5), 0, False),    # the same in lock-step: fine
     (LOCKSTEP_LDO, PlantPoint(240.0, 0.73, 0.5), 2, False),
-    ({}, PlantPoint(2640.0, 0.95, 0.5), 2, False),              # shipped gains
+    ({}, PlantPoint(2640.0, 0.95, 0.5), 2, False),              # the loop before (kp 0)
     ({}, PlantPoint(250.0, 0.73, 0.5, slip=True), 2, False),
 ])
 def test_predicted_poles_agree_with_a_time_domain_run_of_the_step(m, p, delay, grows):
@@ -157,12 +162,26 @@ def test_lab_override_starts_them_and_says_why():
 
 def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     """kp alone (no damping) on the lightly damped plant misses the gain margin; the
-    shipped integral trim meets it."""
-    bad = ControllerConfig.from_mapping({"torque_loop": "pid", "feedback": {"kp": 0.5, "kd_s": 0.0,
-                                                                          "ki_1_s": 0.15}})
+    deflection-rate damping makes kp 1.25 meet both (PM 48 deg at b 100; shipped: kp 0.75, b 60), while a larger kp or
+    more damping than the delay allows (its own crossover near b / J_m) misses the phase margin."""
+    bad = ControllerConfig.from_mapping({"torque_loop": "pid", "feedback": {"kp": 0.5, "kd_s": 0.0, "ki_1_s": 0.15,
+                                                                          "deflection_damping_Nms_rad": 0.0}})
     with pytest.raises(ConfigError, match="gain margin"):
         check_margins(bad)
     assert check_margins(ControllerConfig.from_mapping({})).ok
+    shipped = ControllerConfig.from_mapping({})
+    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 60.0
+    # the link's velocity at 150 Hz without the lag compensation, J_c 0.3
+    plain = {"deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3}
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.25,
+                                                                     "deflection_damping_Nms_rad": 100.0}})).ok
+    for kp, b in ((1.5, 100.0), (1.25, 130.0)):       # PM 44.8 and 44.5 deg: just outside
+        cfg = ControllerConfig.from_mapping({"feedback": {**plain, "kp": kp, "deflection_damping_Nms_rad": b}})
+        with pytest.raises(ConfigError, match="phase margin"):
+            check_margins(cfg)
+    just_in = check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.4,
+                                                                        "deflection_damping_Nms_rad": 100.0}}))
+    assert 45.0 <= just_in.worst_phase_margin_deg < 47.0
 
 
 def _stick_input_stiffness(amp_Nm: float) -> float:
@@ -285,7 +304,8 @@ def test_inertia_compensation_margins_and_its_limit():
     does not; without the gravity model (the link's full pendulum stiffness in slip) 0.2 does,
     0.3 does not; an amount at or above the lightest joint inertia is refused by name."""
     for jc, gravity, good in ((0.3, True, True), (0.34, True, False), (0.2, False, True), (0.3, False, False)):
-        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0},
+        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0,
+                                                          "deflection_link_lag_compensation": False},
                                              "gravity": {"enabled": gravity}})
         assert analyse(cfg).ok == good, (jc, gravity)
     ok = cfg
@@ -294,8 +314,11 @@ def test_inertia_compensation_margins_and_its_limit():
         ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": j_min}})
     with pytest.raises(ConfigError, match="dead_band_rad_s"):      # no rest band: gyro noise on the command
         ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0}})
+    with pytest.raises(ConfigError, match="deflection_damping_Nms_rad"):   # the damping's link velocity too
+        ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
+                                       "feedback": {"inertia_comp_kg_m2": 0.0}})
     ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
-                                   "feedback": {"inertia_comp_kg_m2": 0.0}})
+                                   "feedback": {"inertia_comp_kg_m2": 0.0, **OLD_LOOP}})
     with pytest.raises(ConfigError, match="acceleration_source"):
         ControllerConfig.from_mapping({"feedback": {"acceleration_source": "wheel"}})
 

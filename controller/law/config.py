@@ -16,14 +16,19 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
       feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
                                      # (the derivative acts on the measured tau_in only)
-        kp: 0.0                      # proportional gain on the tau_in error [Nm/Nm]
+        kp: 0.75                     # proportional gain on the tau_in error [Nm/Nm]
         kd_s: 0.0                    # derivative gain [Nm s/Nm]
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
-        inertia_comp_kg_m2: 0.3      # + J_c x acceleration on the command (0 = off), gated at rest
+        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
         acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
         acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
+        deflection_damping_Nms_rad: 60.0      # - b (dq_m - link's - reference's deflection rate) (0 = off)
+        deflection_link_cutoff_hz: 30.0       # low-pass of the link's rate in it (lag compensated, below)
+        deflection_reference_cutoff_hz: 2.0   # ... of tau_in_des (less gravity) before its rate
+        rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
+        deflection_link_lag_compensation: true  # + its lag x the link's acceleration (needs source link)
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
@@ -256,11 +261,12 @@ class ControllerConfig:
                               f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s "
                               f"({prefix}.stability.gyro_noise_rad_s) so the friction direction cannot "
                               f"follow noise at rest, got {ff.dead_band_rad_s}")
-        if fb.inertia_comp_kg_m2 > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
-            raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
-                              f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "
-                              f"{prefix}.feedback.inertia_comp_kg_m2 > 0: the rest band also keeps the "
-                              f"differentiated gyro noise off the command at rest, got {ff.dead_band_rad_s}")
+        for key in ("inertia_comp_kg_m2", "deflection_damping_Nms_rad", "rest_gate_cutoff_hz"):
+            if getattr(fb, key) > 0.0 and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
+                raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
+                                  f"must be >= 2 x the gyro noise {stab.gyro_noise_rad_s} rad/s while "
+                                  f"{prefix}.feedback.{key} > 0: the rest band also keeps the gyro's "
+                                  f"noise off the command at rest, got {ff.dead_band_rad_s}")
         j_min = plant.motor_inertia_kg_m2 * (1.0 - stab.inertia_tolerance)
         what = "J_m (1 - inertia_tolerance)"
         if fb.acceleration_source == AccelerationSource.LINK:     # motor and link move together

@@ -24,6 +24,7 @@ from capstan.controller.law.feedforward import friction_torque_per_N
 from capstan.controller.law.learned_effects import pack_block
 from capstan.controller.law.ldo import derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients, \
     qpinv_filter_coefficients
+from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.records import FaultBits, new_record
 from capstan.controller.law import step as _s
 
@@ -54,6 +55,13 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0
+    c[_s.C_DEFL_B] = fb.deflection_damping_Nms_rad
+    c[_s.C_DEFL_ALPHA] = lowpass_alpha(fb.deflection_link_cutoff_hz, dt)
+    c[_s.C_DEFL_REF_ALPHA] = lowpass_alpha(fb.deflection_reference_cutoff_hz, dt)
+    c[_s.C_DEFL_K_INV] = 1.0 / p.stiffness_Nm_rad
+    c[_s.C_FBG_ON] = 1.0 if fb.rest_gate_cutoff_hz > 0.0 else 0.0
+    c[_s.C_FBG_ALPHA] = lowpass_alpha(fb.rest_gate_cutoff_hz, dt)
+    c[_s.C_DEFL_LEAD] = deflection_link_lead_s(cfg)
     c[_s.C_I_LIM] = fb.integral_limit_Nm
     c[_s.C_G_ON] = 1.0 if cfg.gravity_enabled else 0.0
     c[_s.C_MGL] = cfg.m_g_l_Nm

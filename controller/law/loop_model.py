@@ -38,6 +38,7 @@ import numpy as np
 from scipy import signal
 
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
+from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.ldo import (derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients,
                                         qpinv_filter_coefficients)
 
@@ -166,6 +167,30 @@ def acceleration_filter(cfg: ControllerConfig) -> TF:
     return np.array([g, -g]), np.array([1.0, -a])
 
 
+def deflection_link_filter(cfg: ControllerConfig) -> TF:
+    """``H_l(z)``: link velocity dq_out -> the motor velocity it implies in the deflection-rate
+    damping, ``(r_out/r_in) (1 - a) z^-1 / (1 - a z^-1)``: the IMU's 400 Hz sample-and-hold as
+    one cycle of delay (as in :func:`acceleration_filter`) and the step's first-order low-pass
+    at ``feedback.deflection_link_cutoff_hz``."""
+    a = lowpass_alpha(cfg.feedback.deflection_link_cutoff_hz, cfg.dt_s)
+    g = (1.0 - a) * cfg.plant.r_out_m / cfg.plant.r_in_m
+    return np.array([0.0, g]), np.array([1.0, -a])
+
+
+def deflection_reference_filter(cfg: ControllerConfig) -> TF:
+    """``H_r(z)``: the reference (tau_in_des less gravity) -> the deflection rate it asks for
+    [rad/s per Nm], ``(1 - a)(1 - z^-1) / (T K_c (1 - a z^-1))``: the step's low-pass at
+    ``feedback.deflection_reference_cutoff_hz``, backward difference, ``1 / plant.stiffness_Nm_rad``.
+
+    A reference path (the torque reference and the friction feedforward, not linear and left out
+    of this analysis as elsewhere), so not part of the loop. The gravity model is left out of it
+    in the step: its rate is ``m_g_l dq_out``, a positive feedback of the link's velocity that
+    undamps the free link's slow mode (0.2 Hz) at every slip point of the grid for b >= 40."""
+    a = lowpass_alpha(cfg.feedback.deflection_reference_cutoff_hz, cfg.dt_s)
+    g = (1.0 - a) / (cfg.dt_s * cfg.plant.stiffness_Nm_rad)
+    return np.array([g, -g]), np.array([1.0, -a])
+
+
 def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
     """The plant's velocity that feeds the inertia compensation (motor or link), continuous."""
     if cfg.feedback.acceleration_source == AccelerationSource.LINK:
@@ -176,8 +201,11 @@ def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
 def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                   f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
-    input, ``L = z^-d (C P - J_c A P_v)`` (the inertia compensation is positive feedback of
-    the motor acceleration, so it enters with a minus sign)."""
+    input, ``L = z^-d (C P - J_c A P_v + b (P_v - (H_l + lead A) P_o))`` (the inertia compensation is
+    positive feedback of the acceleration, so it enters with a minus sign; the deflection-rate
+    damping ``b`` is negative feedback of the motor velocity less the link's, :func:`deflection_link_filter`,
+    led by ``lead`` (:func:`capstan.controller.law.feedback_config.deflection_link_lead_s`) times the link's
+    acceleration through J_c's filter ``A``)."""
     c = freq_response(controller_tf(cfg), f_hz, cfg.dt_s)
     loop = c * freq_response(plant_discrete(p, cfg.dt_s, delay_cycles), f_hz, cfg.dt_s)
     jc = cfg.feedback.inertia_comp_kg_m2
@@ -185,6 +213,17 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
     if jc != 0.0 and np.any(vel[0]):
         pv = plant_discrete(p, cfg.dt_s, delay_cycles, vel)
         loop = loop - jc * freq_response(_mul(acceleration_filter(cfg), pv), f_hz, cfg.dt_s)
+    b = cfg.feedback.deflection_damping_Nms_rad
+    if b != 0.0:    # - b (dq_m - H_l dq_out) on the command
+        pvm = plant_discrete(p, cfg.dt_s, delay_cycles, plant_velocity_continuous(p))
+        defl = freq_response(pvm, f_hz, cfg.dt_s)
+        if p.slip:
+            pvo = plant_discrete(p, cfg.dt_s, delay_cycles, plant_link_velocity_continuous(p))
+            defl = defl - freq_response(_mul(deflection_link_filter(cfg), pvo), f_hz, cfg.dt_s)
+            lead = deflection_link_lead_s(cfg)      # + lead x the link's acceleration (J_c's filter A)
+            if lead != 0.0:
+                defl = defl - lead * freq_response(_mul(acceleration_filter(cfg), pvo), f_hz, cfg.dt_s)
+        loop = loop + b * defl
     return c, loop
 
 
@@ -269,15 +308,18 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         QP = Q = _Block((np.array([0.0]), np.array([1.0])))
     ag, bg, cg = plant_state_space(p, cfg.dt_s)
     jc = fb.inertia_comp_kg_m2
-    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 else (np.array([0.0]), np.array([1.0])))
+    lead = deflection_link_lead_s(cfg)
+    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 or lead != 0.0 else (np.array([0.0]), np.array([1.0])))
     link = fb.acceleration_source == AccelerationSource.LINK
     v_index = (3 if p.slip else -1) if link else 1      # plant states (q_m, dq_m[, q_o, dq_o])
+    b_defl = fb.deflection_damping_Nms_rad
+    Hl = _Block(deflection_link_filter(cfg) if b_defl != 0.0 else (np.array([0.0]), np.array([1.0])))
     d = int(delay_cycles)
     # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay,
-    # motor acceleration filter
+    # motor acceleration filter, the link velocity's filter of the deflection-rate damping
     # (with ki = 0 the step's integral stays 0: a constant, not a mode of the loop, so no state)
     integral = not ldo and fb.ki_1_s != 0.0
-    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n]
+    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -301,6 +343,8 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         v = float(xs[0][v_index]) if v_index >= 0 else 0.0
         acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc
+        v_link, out[10] = Hl.step(xs[10], float(xs[0][3]) if p.slip else 0.0)
+        u -= b_defl * (float(xs[0][1]) - v_link - lead * acc)
         if ldo:
             out[6] = np.array([u])      # the observer's u[k-1] is the applied command, J_c term included
         if d:

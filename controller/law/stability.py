@@ -25,7 +25,7 @@ the margins the config would have when the worst point misses
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -71,6 +71,9 @@ class StabilityReport:
     delay_cycles: int
     min_phase_margin_deg: float
     min_gain_margin_dB: float
+    #: with ``feedback.rest_gate_cutoff_hz`` > 0 the loop fades kp and the deflection damping in and
+    #: out together: (factor, worst phase margin [deg], worst gain margin [dB], ok) at the faded gains
+    faded: tuple[tuple[float, float, float, bool], ...] = ()
 
     @property
     def worst_phase_margin_deg(self) -> float:
@@ -88,7 +91,7 @@ class StabilityReport:
     def ok(self) -> bool:
         """True if every point is stable and meets both required margins."""
         return (self.all_stable and self.worst_phase_margin_deg >= self.min_phase_margin_deg
-                and self.worst_gain_margin_dB >= self.min_gain_margin_dB)
+                and self.worst_gain_margin_dB >= self.min_gain_margin_dB and all(f[3] for f in self.faded))
 
     def nominal(self) -> PointResult:
         """The stick point in the middle of the grid (nominal stiffness and inertia)."""
@@ -103,6 +106,8 @@ class StabilityReport:
                 "worst_sensitivity_peak_dB": max(p.sensitivity_peak_dB for p in self.points),
                 "worst_loadcell_to_cmd_std_Nm": max(p.loadcell_to_cmd_std_Nm for p in self.points),
                 "worst_gyro_to_cmd_std_Nm": max(p.gyro_to_cmd_std_Nm for p in self.points),
+                "faded": [{"factor": f[0], "worst_phase_margin_deg": f[1], "worst_gain_margin_dB": f[2], "ok": f[3]}
+                          for f in self.faded],
                 "points": [p.to_dict() for p in self.points]}
 
     def summary(self) -> str:
@@ -116,6 +121,10 @@ class StabilityReport:
             text += (f", closed loop UNSTABLE at {len(bad)} of {len(self.points)} plant points (worst: {mode}, "
                      f"K {p.stiffness_Nm_rad:.0f} Nm/rad, J_m {p.motor_inertia_kg_m2:.2f} kg m^2: a mode at "
                      f"{p.dominant_pole_hz:.1f} Hz growing x{p.dominant_pole_abs:.4f} per cycle)")
+        for g, pm, gm, ok in self.faded:
+            if not ok:
+                text += (f"; with kp and the deflection damping faded to x{g:g} (rest gate): phase margin "
+                         f"{pm:.1f} deg, gain margin {gm:.1f} dB")
         return text + f", I/O delay {self.delay_cycles} cycles"
 
 
@@ -240,7 +249,18 @@ def analyse(cfg: ControllerConfig) -> StabilityReport:
         pts = tuple(analyse_point(cfg, st, p, slope) for p in plant_points(cfg, st))
     except ValueError as exc:
         raise ConfigError("controller", f"the torque loop cannot be analysed: {exc}") from exc
-    return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB)
+    fb = cfg.feedback
+    faded = []
+    if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0):
+        for g in FADE_FACTORS:      # the gate's low-pass moves kp and b together through these
+            sub = analyse(replace(cfg, feedback=replace(fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0,
+                                                        deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad)))
+            faded.append((g, sub.worst_phase_margin_deg, sub.worst_gain_margin_dB, sub.ok))
+    return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded))
+
+
+#: the factors on kp and the deflection damping the fading rest gate is checked at besides 1 (0: at rest)
+FADE_FACTORS = (0.5, 0.0)
 
 
 def check_margins(cfg: ControllerConfig, override: bool = False) -> StabilityReport:

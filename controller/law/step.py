@@ -34,6 +34,22 @@ Control law (per cycle, ``k``)::
                                    sample in a row outside it), on the filter's input so that the
                                    gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
+    both: tau_m -= g_fb b (dq_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
+                                   deflection-rate damping
+                                   (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
+                                   velocity (every cycle), the link's velocity per IMU sample, held,
+                                   low-passed (feedback.deflection_link_cutoff_hz) plus its lag x the
+                                   link's acceleration (deflection_link_lag_compensation); g' = 1 with the
+                                   rest gate g_fb below, else g (at rest the link's rate is gyro
+                                   noise: 0); D the rate of the
+                                   reference low-passed (feedback.deflection_reference_cutoff_hz),
+                                   K_c plant.stiffness_Nm_rad. It damps the motor
+                                   against the cable (stick / sheath-stick modes, which a delayed kp
+                                   drives), is 0 in a steady motion and does not brake the deflection
+                                   the reference asks for (a load change along a stroke)
+    g_fb: 1, or with feedback.rest_gate_cutoff_hz > 0 the debounced rest gate low-passed at
+          that cutoff, on kp e and on the damping: at rest neither load-cell noise x kp nor the
+          encoder velocity's quantisation x b reaches the command
 
 ``tau_m[k-1]`` is the command actually applied in the previous cycle (after safety), so
 clamping and rate limiting do not wind the observer up.
@@ -112,7 +128,14 @@ C_JC = 42               # inertia compensation J_c [kg m^2] (0 = off)
 C_ACC_ALPHA = 43        # pole of the acceleration low-pass
 C_ACC_LINK = 44         # 1.0 = link acceleration from the IMU rate, 0.0 = motor from dq_m
 C_FF_SLEW_STEP = 45     # largest change of the feedforward per cycle [Nm] (feedforward.max_rate_Nm_s x dt)
-N_CFG = 46              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_DEFL_B = 46           # damping of the deflection rate [Nm s/rad] (feedback.deflection_damping_Nms_rad; 0 = off)
+C_DEFL_ALPHA = 47       # pole of the low-pass on the link's velocity in it (feedback.deflection_link_cutoff_hz)
+C_DEFL_REF_ALPHA = 48   # pole of the low-pass on tau_in_des whose rate it subtracts (deflection_reference_cutoff_hz)
+C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection rate the reference asks for
+C_FBG_ON = 50           # 1.0 = kp and the deflection damping act only in motion (feedback.rest_gate_cutoff_hz > 0)
+C_FBG_ALPHA = 51        # pole of the low-pass that fades them in and out
+C_DEFL_LEAD = 52        # lead on the link's velocity in the damping [s] (0 = off): + lead x the link acceleration
+N_CFG = 53              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -137,7 +160,12 @@ S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samp
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
 S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
 S_FC_OUT = S_ACC_GATE + 1  # the feedforward after its slew limit [Nm]
-N_STATE = S_FC_OUT + 1
+S_DEFL_IN = S_FC_OUT + 1   # gated link velocity at the motor [rad/s], held between IMU samples
+S_DEFL_LINK = S_DEFL_IN + 1  # ... low-passed: the motor velocity the link's motion implies [rad/s]
+S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first cycle set it)
+S_FBG_IN = S_DEFL_REF + 1  # rest gate of kp and the damping, held between IMU samples
+S_FBG = S_FBG_IN + 1       # ... low-passed: the factor on kp and b
+N_STATE = S_FBG + 1
 
 
 @njit(cache=True)
@@ -167,6 +195,14 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC_N] = 0.0
         st[S_ACC_GATE] = 0.0
         st[S_FC_OUT] = 0.0
+        # a start in motion: the link-implied velocity starts where the link is (gated as below), so
+        # the damping does not kick by -b dq_m on the first cycle
+        g0 = 1.0 if cfg[C_FBG_ON] != 0.0 else rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
+        st[S_DEFL_IN] = g0 * r.dq_out_rad_s / cfg[C_R_RATIO]
+        st[S_DEFL_LINK] = st[S_DEFL_IN]
+        st[S_DEFL_REF] = math.nan
+        st[S_FBG_IN] = 0.0
+        st[S_FBG] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -179,7 +215,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # sample: it opens only on the second sample in a row outside its lower edge, so one noise
     # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
     gate = 0.0
-    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0):
+    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_DEFL_B] != 0.0
+                           or cfg[C_FBG_ON] != 0.0):
         g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
         st[S_FF_OUT] = 1.0 if g_now > 0.0 else 0.0
@@ -204,11 +241,16 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     tau_in_des = cfg[C_R_RATIO] * tau_out_des
 
     # ---- feedback
+    g_fb = 1.0          # the factor on kp and the deflection damping: 1, or the faded rest gate
+    if cfg[C_FBG_ON] != 0.0:
+        if r.imu_new != 0:
+            st[S_FBG_IN] = gate
+        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_FBG_IN])
     e = tau_in_des - tau_in
     deriv = -cfg[C_KD_A1] * st[S_D] - cfg[C_KD_B0] * (tau_in - st[S_TIN_PREV])
     st[S_D] = deriv
     st[S_TIN_PREV] = tau_in
-    fb = cfg[C_KP] * e + deriv
+    fb = g_fb * cfg[C_KP] * e + deriv
 
     # ---- torque loop
     d_hat = 0.0
@@ -224,7 +266,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
-    if cfg[C_JC] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
+    if cfg[C_JC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
         if r.imu_new != 0:  # g: the feedforward's debounced rest gate on the joint rate (0 at rest: one
             # gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample)
             st[S_ACC_GATE] = gate
@@ -239,7 +281,27 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             st[S_V_PREV] = r.dq_m_rad_s
         # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
-        tau_raw += cfg[C_JC] * lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+        if cfg[C_JC] != 0.0:
+            tau_raw += cfg[C_JC] * acc
+    if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
+        if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, low-passed). At rest the gyro's noise
+            # is kept off by g_fb; without it (rest_gate_cutoff_hz 0), by gating the link's rate like J_c. Not
+            # both: at a reversal the link passes the rest band while the motor still moves, and the gated
+            # link rate would step the term by b x dq_out (1.2 Nm in a slow HIL stroke)
+            st[S_DEFL_IN] = (1.0 if cfg[C_FBG_ON] != 0.0 else gate) * r.dq_out_rad_s / cfg[C_R_RATIO]
+        # low-passed, and led by the low-pass's and the hold's lag times the link's acceleration (its S_ACC,
+        # gated at rest; feedback.deflection_link_lag_compensation)
+        v_link = lowpass_step(cfg[C_DEFL_ALPHA], st, S_DEFL_LINK, st[S_DEFL_IN]) + cfg[C_DEFL_LEAD] * st[S_ACC]
+        # the deflection rate the reference asks for, d/dt LP[tau_in_des - gravity] / K: the gravity
+        # model's rate is m_g_l dq_out, positive feedback of the link's velocity that would undamp the
+        # free link (loop_model.deflection_reference_filter)
+        ref_in = tau_in_des - cfg[C_R_RATIO] * tau_g
+        if math.isnan(st[S_DEFL_REF]):
+            st[S_DEFL_REF] = ref_in
+        ref_prev = st[S_DEFL_REF]
+        v_ref = (lowpass_step(cfg[C_DEFL_REF_ALPHA], st, S_DEFL_REF, ref_in) - ref_prev) * cfg[C_DEFL_K_INV] / cfg[C_DT]
+        tau_raw -= g_fb * cfg[C_DEFL_B] * (r.dq_m_rad_s - v_link - v_ref)
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])

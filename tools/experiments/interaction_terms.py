@@ -56,9 +56,17 @@ class TermVariant:
 
 
 _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
+#: the loop before the deflection-rate damping: no torque feedback (kp 0), no damping, J_c 0.3
+_PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3}
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
-    TermVariant("shipped", "feedforward + integral trim + inertia compensation"),
+    TermVariant("shipped", "feedforward + kp 0.75 + deflection damping (lag-compensated link rate)"
+                           " + integral trim + inertia compensation"),
+    TermVariant("no_deflection_damping", "deflection-rate damping off, kp kept",
+                extra={"feedback": {"deflection_damping_Nms_rad": 0.0}}),
+    TermVariant("no_torque_feedback", "kp 0 and no deflection damping (the loop before)", extra={"feedback": _PREV}),
+    TermVariant("kp_always_on", "kp and damping also at rest (no rest gate)",
+                extra={"feedback": {"rest_gate_cutoff_hz": 0.0}}),
     TermVariant("no_feedforward", "friction feedforward off", feedforward=False),
     TermVariant("no_inertia_comp", "inertia compensation off", extra=_NO_JC),
     TermVariant("no_integral_trim", "integral trim off (ki 0)", extra={"feedback": {"ki_1_s": 0.0}}),
@@ -68,6 +76,8 @@ TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("imu_1khz", "IMU at 1 kHz instead of 400 Hz", imu_rate_hz=1000.0),
     TermVariant("gravity_only", "uncompensated: no feedforward, no inertia compensation",
                 feedforward=False, extra=_NO_JC),
+    TermVariant("gravity_only_no_torque_feedback", "uncompensated, kp 0 and no damping (the loop before)",
+                feedforward=False, extra={"feedback": {**_PREV, "inertia_comp_kg_m2": 0.0}}),
     TermVariant("paper_pid_gravity_only", "paper's gravity-only PID, lock-step gains (kp 5)",
                 loop="pid", feedforward=False),
 )

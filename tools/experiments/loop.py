@@ -117,6 +117,12 @@ def run(args: argparse.Namespace) -> int:
           f"ki {cfg.feedback.ki_1_s:g} 1/s, inertia compensation {cfg.feedback.inertia_comp_kg_m2:g} kg m^2 "
           f"({cfg.feedback.acceleration_source.name.lower()}, {cfg.feedback.acceleration_cutoff_hz:g} Hz), "
           f"I/O delay {st.io_delay_cycles} cycles")
+    fb = cfg.feedback
+    if fb.deflection_damping_Nms_rad or fb.rest_gate_cutoff_hz:
+        print(f"deflection-rate damping {fb.deflection_damping_Nms_rad:g} Nm s/rad (link velocity low-pass "
+              f"{fb.deflection_link_cutoff_hz:g} Hz, reference rate {fb.deflection_reference_cutoff_hz:g} Hz); "
+              + (f"kp and damping only in motion, faded at {fb.rest_gate_cutoff_hz:g} Hz" if fb.rest_gate_cutoff_hz
+                 else "kp and damping always on"))
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
           f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
@@ -128,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
               f"{p.gain_margin_dB:>8.1f}{p.gain_margin_at_hz:>7.1f}{p.phase_margin_deg:>8.1f}{p.phase_margin_at_hz:>7.1f}"
               f"{p.sensitivity_peak_dB:>8.1f}{p.resonance_hz:>8.1f}{p.loadcell_to_cmd_std_Nm:>9.4f}"
               f"{p.gyro_to_cmd_std_Nm:>10.4f}")
+    for g, pm, gm, ok in rep.faded:
+        print(f"faded to x{g:g} (kp {g * fb.kp:g}, damping {g * fb.deflection_damping_Nms_rad:g}): worst PM {pm:.1f} deg, "
+              f"GM {gm:.1f} dB{'' if ok else ' FAILS'}")
     print(("OK: " if rep.ok else "FAILS: ") + rep.summary())
     if args.log:
         lc = out["log_check"]
