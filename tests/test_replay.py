@@ -282,3 +282,18 @@ def test_replay_machinery_with_a_controller_bound_to_its_own_record() -> None:
     res = replay_records(log, _BoundController(), ("t_s", "x"), ("y", "tau_m_cmd_Nm"))
     assert res.n_different == 0 and res.max_abs_dtau_m_Nm == 0.0
     assert res.replayed.tobytes() == log.tobytes()
+
+
+def test_the_daemon_logs_the_resolved_controller_config(tmp_path: Path) -> None:
+    """A config that leaves keys to their defaults is logged with every value explicit, so a
+    later change of a default cannot change what a replay of the log rebuilds."""
+    from capstan.controller.runtime.session_log import logged_config
+    raw = {"controller": {"dt_s": 0.001}, "loop": {"period_s": 0.001}}
+    ctl = Controller(ControllerConfig.from_mapping(raw["controller"]))
+    logged = logged_config(raw, ctl)
+    assert logged["loop"] == raw["loop"] and raw["controller"] == {"dt_s": 0.001}   # not mutated
+    fb = logged["controller"]["feedback"]
+    assert {"kp", "deflection_damping_Nms_rad", "inertia_comp_kg_m2"} <= set(fb)
+    again = yaml.safe_load(yaml.safe_dump(logged, sort_keys=False))       # as the log stores it
+    assert ControllerConfig.from_mapping(again["controller"]) == ctl.cfg
+    assert logged_config(raw, object()) is raw                              # a controller without a config

@@ -34,8 +34,8 @@ from capstan.controller.runtime.config import DaemonConfig
 from capstan.controller.runtime.loop_checks import all_fresh, cpu_snapshot, limit_violation, rate_step_Nm, writer_is_lost
 from capstan.controller.runtime.run_summary import Phase, RunSummary
 from capstan.controller.runtime.link_report import device_links, fill_link_stats, link_status, link_summary
-from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, newest_log, open_session,
-                                                    send_derivations, wire_capable)
+from capstan.controller.runtime.session_log import (STATS_DTYPE, LogSink, fill_stats, logged_config, newest_log,
+                                                    open_session, send_derivations, wire_capable)
 from capstan.controller.law.records import FaultBits, fault_names, loop_command
 from capstan.controller.runtime.sd_notify import SdNotifier
 from capstan.controller.runtime.timing import DeadlineSleeper, LoopStats, shared_abs_sleep
@@ -131,7 +131,7 @@ class Daemon:
         self._log_started_s = time.time()
         if self.sink is None:
             lg = self.cfg.logging
-            self.sink = open_session(lg.dir, ctl.record.dtype, self.cfg.raw, lg.ring_records,
+            self.sink = open_session(lg.dir, ctl.record.dtype, logged_config(self.cfg.raw, ctl), lg.ring_records,
                                      lg.fault_history_cycles, wire=wire_capable(self.devices),
                                      imu_rate_float32=bool(getattr(self.devices.imu, "rate_is_float32", False)),
                                      on_writer_loss=lg.on_writer_loss, max_writer_restarts=lg.max_writer_restarts,

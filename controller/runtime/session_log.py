@@ -151,6 +151,17 @@ def open_session(out_dir: Path, record_dtype: np.dtype, config: Any, ring_record
     return session
 
 
+def logged_config(raw: Any, controller: Any) -> Any:
+    """The config a log stores: the daemon's mapping as written, with the ``controller``
+    section replaced by the resolved one of the controller that runs (every value explicit,
+    ``ControllerConfig.to_mapping``), so a replay rebuilds the same law even after a default
+    changes. ``raw`` is returned as it is for a controller without a resolved config."""
+    cfg = getattr(controller, "cfg", None)
+    if not isinstance(raw, dict) or not hasattr(cfg, "to_mapping"):
+        return raw
+    return {**raw, "controller": cfg.to_mapping()}
+
+
 def wire_capable(devices: Any) -> bool:
     """True if every device says how its SI values follow from its wire values
     (``derivations()``), so the log can store wire values only."""
