@@ -20,7 +20,15 @@ Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
 ``LINK`` -- the output is a link moved by unmeasured forces (hand, gravity; table meta
     ``output: link``, written by the daemon's log mapping): tau_out (output load cells) and
     q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted;
-    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted.
+    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted. Two parameters
+    shape the stick-to-slip transition here: the friction law's exponent ``dahl_exp``
+    (:mod:`capstan.models.transmission.stick_slip`; 1 = Dahl) and a damping of the elastic
+    path ``d_in`` [Nm s/rad] (Kelvin-Voigt: ``tau_in = K_in (q_in - x) + d_in (dq_in - v) +
+    c_in``, node balance ``K_in (q_in - x) + d_in (dq_in - v) - g tau_out = f + b_vis v``;
+    dq_in by the zero-phase Savitzky-Golay derivative). After a reversal of the distributed
+    sheath tau_in rises at 2000-3000 Nm/rad (the cable up to the first gripping node), then
+    ever less steeply; one spring K_in (~600 Nm/rad) into the Dahl law breaks away 5-10 ms
+    late, which a fitted sensor latency otherwise absorbs. ``OUTPUT_HELD``: fixed at 1 / 0.
     The link angle (IMU, ~0.5 mrad noise) does not drive: x ~500 Nm/rad it is ~0.25 Nm.
 ``ANGLES`` -- both pulley angles drive the node of the unit:
     ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
@@ -48,6 +56,7 @@ from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
 from capstan.models.transmission.stick_slip import simulate_unit
+from capstan.models.transmission.unit_plausibility import plausibility
 
 #: the output counts as held when std(tau_out) < HELD_FRACTION * std(tau_in) (every run)
 HELD_FRACTION = 0.1
@@ -462,25 +471,3 @@ def power_warnings(sig: Signals, form: DrivingForm) -> list[str]:
         return [f"mean input power tau_in * dq_in is negative ({p:.3g} W): the signs of tau_in and q_in "
                 "disagree (fix the sign of one of them in the import description)"]
     return []
-
-
-def plausibility(params: dict[str, float], target_Nm: np.ndarray, v95_rad_s: float) -> dict[str, str]:
-    """``{name: reason}`` of parameters outside their plausible range for a cable transmission."""
-    span = float(np.ptp(target_Nm)) if target_Nm.size else 0.0
-    out: dict[str, str] = {}
-    zs = params.get("zeta_s", 1.0)
-    if zs > 3.0:
-        out["zeta_s"] = f"{zs:.3g} > 3: a stiction peak three times the sliding friction"
-    tfc = params.get("tau_fc_Nm", 0.0)
-    if span > 0.0 and tfc > span:
-        out["tau_fc_Nm"] = f"{tfc:.3g} Nm exceeds the whole span of the target ({span:.3g} Nm)"
-    eta = params.get("eta_s_rad_s", v95_rad_s)
-    if eta > 10.0 * v95_rad_s and zs - 1.0 > 1e-3:    # (with zeta_s = 1, eta_s has no effect)
-        out["eta_s_rad_s"] = f"{eta:.3g} rad/s is beyond 10x the run's 95th-percentile speed ({v95_rad_s:.3g} rad/s)"
-    bv = params.get("b_vis_Nms_rad", 0.0)
-    if span > 0.0 and bv * v95_rad_s > span:
-        out["b_vis_Nms_rad"] = f"viscous torque at the 95th-percentile speed ({bv * v95_rad_s:.3g} Nm) exceeds the target span"
-    for k in ("K_c_Nm_rad", "K_in_Nm_rad", "k_out_Nm_rad"):
-        if k in params and not 1e-3 <= params[k] <= 1e6:
-            out[k] = f"{params[k]:.3g} Nm/rad outside [1e-3, 1e6]"
-    return out

@@ -9,26 +9,29 @@ angle on the testbed -- whose velocity ``v`` obeys the torque balance::
     c0 v + f + b_vis v = a(t) - kx x,          f = friction torque carried by the sheath [Nm]
 
 The friction torque is a state of its own (elasto-plastic, generalised Dahl form with
-exponent ``i`` in (0, 1], dimensionless)::
+exponent ``i > 0``, dimensionless)::
 
     df/dx = k_pre sgn(u) |u|^i,   u = 1 - sgn(v) f / F(v),
     F(v) = tau_fc [1 + (zeta_s - 1) exp(-(v / eta_s)^2)]
 
 * stick: while ``|f|`` is below the capacity ``F`` the sheath holds the elastic state with
-  the presliding stiffness ``k_pre`` [Nm/rad] (``v = 0`` whenever the demanded friction does
-  not change; as ``k_pre -> inf`` this is the set-valued Coulomb stick of a rigid node);
+  the presliding stiffness ``k_pre 2^i`` right after a reversal [Nm/rad] (``v = 0`` whenever
+  the demanded friction does not change; as ``k_pre -> inf`` this is the set-valued Coulomb
+  stick of a rigid node);
 * breakaway where the demanded friction exceeds the capacity: ``f`` saturates at
   ``+-F(v)``, the eq-21 Stribeck-Coulomb law (``zeta_c = 1``) with the sign of the motion
   in place of the tanh (the state carries the stick phase the tanh only approximates).
-* the exponent shapes the stick-to-slip transition. ``i = 1`` is Dahl's law: the stiffness
-  falls in proportion to the capacity still unused and ``f`` reaches ``F`` only
-  asymptotically. ``i = 1/2`` is an Iwan element with slip thresholds spread uniformly over
-  ``[0, 2F]`` (the capacity mobilised progressively along a sheath, the distributed model's
-  slip zone spreading from the input): ``f`` is a parabola in the travel and reaches ``F``
-  after a finite travel. ``i < 1`` saturates after the travel
+* the exponent shapes the stick-to-slip transition (the capacity mobilised progressively
+  along the sheath, as the distributed model's slip zone spreads from the input).
+  ``i = 1`` is Dahl's law: the stiffness falls in proportion to the capacity still unused,
+  ``f`` reaches ``F`` only asymptotically (travel scale ``F / k_pre``). ``i = 1/2`` is an
+  Iwan element with slip thresholds spread uniformly over ``[0, 2F]``: ``f`` is a parabola
+  in the travel. ``i < 1`` saturates after the finite travel
   ``x_sat = |u0|^(1-i) F / ((1-i) k_pre)`` (``2^(1-i) F / ((1-i) k_pre)`` after a full
   reversal, ``u0 = 2``); ``i -> 0`` is the elasto-plastic (Jenkins) element, stiffness
-  ``k_pre`` until ``f = F``.
+  ``k_pre`` until ``f = F``. ``i > 1``: a stiff start that softens quickly and a long tail
+  (thresholds crowded at the low end, a few far above: ``i = 2`` approaches ``F``
+  hyperbolically, ``u = u0 / (1 + u0 k_pre x / F)``).
 
 Time stepping over each sample interval ``dt``: the new velocity ``v`` is implicit
 (backward Euler), ``(c0 + kx dt + b_vis) v + f_new(v) = a_i - kx x_{i-1}``, solved by a
@@ -36,9 +39,11 @@ bracketed Newton iteration started at the previous velocity (a Stribeck dip keep
 the motion is on). The friction over the step at that constant velocity:
 
 * ``i = 1``: backward Euler, ``f_new = (f + k_pre dt v) / (1 + k_pre dt |v| / F(v))``;
-* ``i < 1``: the exact solution at constant ``v`` (travel ``|v| dt``),
+* ``i != 1``: the exact solution at constant ``v`` (travel ``|v| dt``),
   ``|u_new|^(1-i) = max(0, |u|^(1-i) - (1-i) k_pre |v| dt / F)``, sign of ``u`` kept
-  (:func:`dahl_u_update`).
+  (:func:`dahl_u_update`; it tends to Dahl's exact ``u exp(-k_pre |v| dt / F)`` as
+  ``i -> 1``, which backward Euler approaches as ``dt -> 0``: ``i = 1`` keeps backward Euler
+  so the unit's earlier results are unchanged bit for bit).
 
 ``c0 + kx dt + b_vis > 0`` is required (a stiffness or a damping in every form).
 """
