@@ -37,7 +37,7 @@ def _fit(sig: Signals, **p: float) -> DynamicFit:
     spec = choose_form(sig)
     assert spec.form == DrivingForm.LINK
     base = {"K_in_Nm_rad": 240.0, "g_out": 1.0, "tau_fc_Nm": 0.0, "k_pre_Nm_rad": 1e8, "zeta_s": 1.0,
-            "eta_s_rad_s": 0.05, "b_vis_Nms_rad": 0.0, "offset_in_Nm": 0.0}
+            "eta_s_rad_s": 0.05, "b_vis_Nms_rad": 0.0, "offset_in_Nm": 0.0, "dahl_exp": 1.0, "d_in_Nms_rad": 0.0}
     base.update(p)
     assert set(base) == set(param_names(DrivingForm.LINK))
     return DynamicFit(spec, base)

@@ -239,6 +239,9 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
     assert summary["selected"], "nothing selected on a run with a strong injected effect"
     first = summary["selected"][0]
     assert first["effect"] == "dwell_stiction" and first["improvement"] >= 0.1, summary["selected"]
+    # nothing selected that was not injected, a model-side sensor latency included (the
+    # baseline's transition shape: dahl_exp and the elastic path's damping d_in)
+    assert {s["effect"] for s in summary["selected"]} == {"dwell_stiction"}, summary["selected"]
     # the learned breakaway excess over the hand's rests, against the injected one: amp x the
     # sliding friction (tau_fc, eq 19: 1.87 Nm) x (1 - exp(-rest / tau_age)); amp and tau_age
     # trade against each other on 0.3-3 s rests, their product over the rests does not

@@ -20,7 +20,15 @@ Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
 ``LINK`` -- the output is a link moved by unmeasured forces (hand, gravity; table meta
     ``output: link``, written by the daemon's log mapping): tau_out (output load cells) and
     q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted;
-    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted.
+    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted. Two parameters
+    shape the stick-to-slip transition here: the friction law's exponent ``dahl_exp``
+    (:mod:`capstan.models.transmission.stick_slip`; 1 = Dahl) and a damping of the elastic
+    path ``d_in`` [Nm s/rad] (Kelvin-Voigt: ``tau_in = K_in (q_in - x) + d_in (dq_in - v) +
+    c_in``, node balance ``K_in (q_in - x) + d_in (dq_in - v) - g tau_out = f + b_vis v``;
+    dq_in by the zero-phase Savitzky-Golay derivative). After a reversal of the distributed
+    sheath tau_in rises at 2000-3000 Nm/rad (the cable up to the first gripping node), then
+    ever less steeply; one spring K_in (~600 Nm/rad) into the Dahl law breaks away 5-10 ms
+    late, which a fitted sensor latency otherwise absorbs. ``OUTPUT_HELD``: fixed at 1 / 0.
     The link angle (IMU, ~0.5 mrad noise) does not drive: x ~500 Nm/rad it is ~0.25 Nm.
 ``ANGLES`` -- both pulley angles drive the node of the unit:
     ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
@@ -48,6 +56,7 @@ from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
 from capstan.models.transmission.stick_slip import simulate_unit
+from capstan.models.transmission.unit_plausibility import plausibility
 
 #: the output counts as held when std(tau_out) < HELD_FRACTION * std(tau_in) (every run)
 HELD_FRACTION = 0.1
@@ -66,6 +75,12 @@ DIFF_STEP = 1e-2
 RESTART_GAP_S = 1.0
 #: Levenberg-Marquardt steps on every sample after the fit on windows (long runs)
 FINAL_ITERS = 1
+#: start and lower bound of the friction law's exponent (input-predicted forms; 1 = Dahl)
+DAHL_EXP0 = 2.0
+DAHL_EXP_MIN = 0.05
+DAHL_EXP_MAX = 4.0
+#: start of the elastic path's damping as a time constant d_in / K_in [s] (LINK form)
+D_IN_TAU0_S = 0.005
 
 
 class DrivingForm(IntEnum):
@@ -168,11 +183,11 @@ def choose_form(sig: Signals) -> FormSpec:
 
 
 _NAMES = {DrivingForm.OUTPUT_HELD: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
-                                    "offset_in_Nm"),
+                                    "offset_in_Nm", "dahl_exp", "d_in_Nms_rad"),
           DrivingForm.TESTBED: ("k_out_Nm_rad", "b_out_Nms_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s",
                                 "b_vis_Nms_rad", "offset_out_Nm"),
           DrivingForm.LINK: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
-                             "offset_in_Nm"),
+                             "offset_in_Nm", "dahl_exp", "d_in_Nms_rad"),
           DrivingForm.ANGLES: ("K_c_Nm_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
                                "offset_in_Nm", "offset_out_Nm")}
 
@@ -223,13 +238,16 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
     rho = sig.ratio_q
+    dahl_exp = 1.0
     if form in _INPUT_PREDICTED:
-        K, g, tfc, kp, zs, eta, bv, c_in = p
+        K, g, tfc, kp, zs, eta, bv, c_in, dahl_exp, d_in = p
         if sig.q_in_rad is None:
             raise ModelError(f"the {form.name} form needs q_in")
         a = K * sig.q_in_rad - g * sig.tau_out_Nm
         x0 = a[starts[:-1]] / K
-        c0, kx = 0.0, K
+        dq_in = input_velocity(sig) if d_in != 0.0 else np.zeros(n)
+        a = a + d_in * dq_in
+        c0, kx = d_in, K
     elif form == DrivingForm.TESTBED:
         kout, bout, tfc, kp, zs, eta, bv, c_out = p
         a = rho * sig.tau_in_Nm
@@ -259,12 +277,12 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
     kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
     done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
                          c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
-                         float(mods.c2_Nms2_rad2))
+                         float(mods.c2_Nms2_rad2), float(dahl_exp))
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
     if form in _INPUT_PREDICTED:
-        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + c_in, None)
+        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + d_in * (dq_in - v) + c_in, None)
     elif form == DrivingForm.TESTBED:
         out = (kout * x + bout * v + c_out, None)
     else:
@@ -307,7 +325,7 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
     rho = sig.ratio_q
     tin, tout = sig.tau_in_Nm, sig.tau_out_Nm
     moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form not in _INPUT_PREDICTED else slice(None)
-    fixed = [False] * 8
+    fixed = [False] * len(_NAMES[form])
     if form in _INPUT_PREDICTED:
         assert sig.q_in_rad is not None
         B = np.column_stack([tout, np.ones(len(sig))])
@@ -318,7 +336,7 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
         K0 = 20.0 * float(np.ptp(tin)) / span_q
         tfc0 = max(float(np.percentile(np.abs(f), 50)), 1e-6)
         kp0 = tfc0 / (PRESLIDE_FRACTION * span_q)
-        x0 = [K0, g0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, float(c0)]
+        x0 = [K0, g0, tfc0, kp0, ZETA_S0, 0.2 * v95, 1e-3 * tfc0 / v95, float(c0), DAHL_EXP0, 0.0]
         if form == DrivingForm.LINK:
             # the output load cells measure the torque on the output pulley: g = r_in / r_out
             # (the inverse angle ratio) is geometry, not fitted (a free g takes up effects)
@@ -333,8 +351,11 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
             kc = float(fit_elastic(sig).get("elastic", {}).get("K_c_Nm_rad", 0.0))
             if kc > 0.0:
                 x0[0] = 2.0 * kc
-        lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf]
-        hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf]
+            x0[9] = D_IN_TAU0_S * x0[0]
+        lo = [1e-6 * K0, 1e-9, 0.0, 1e-6 * kp0, 1.0, 1e-4 * v95, 0.0, -np.inf, DAHL_EXP_MIN, 0.0]
+        hi = [np.inf, np.inf, np.inf, np.inf, 5.0, 100.0 * v95, np.inf, np.inf, DAHL_EXP_MAX, np.inf]
+        if form == DrivingForm.OUTPUT_HELD:
+            x0[8], fixed[8], fixed[9] = 1.0, True, True
     elif form == DrivingForm.TESTBED:
         if sig.environment is not None:
             k0, b0 = float(sig.environment[0, 0]), float(sig.environment[0, 1])
@@ -450,25 +471,3 @@ def power_warnings(sig: Signals, form: DrivingForm) -> list[str]:
         return [f"mean input power tau_in * dq_in is negative ({p:.3g} W): the signs of tau_in and q_in "
                 "disagree (fix the sign of one of them in the import description)"]
     return []
-
-
-def plausibility(params: dict[str, float], target_Nm: np.ndarray, v95_rad_s: float) -> dict[str, str]:
-    """``{name: reason}`` of parameters outside their plausible range for a cable transmission."""
-    span = float(np.ptp(target_Nm)) if target_Nm.size else 0.0
-    out: dict[str, str] = {}
-    zs = params.get("zeta_s", 1.0)
-    if zs > 3.0:
-        out["zeta_s"] = f"{zs:.3g} > 3: a stiction peak three times the sliding friction"
-    tfc = params.get("tau_fc_Nm", 0.0)
-    if span > 0.0 and tfc > span:
-        out["tau_fc_Nm"] = f"{tfc:.3g} Nm exceeds the whole span of the target ({span:.3g} Nm)"
-    eta = params.get("eta_s_rad_s", v95_rad_s)
-    if eta > 10.0 * v95_rad_s and zs - 1.0 > 1e-3:    # (with zeta_s = 1, eta_s has no effect)
-        out["eta_s_rad_s"] = f"{eta:.3g} rad/s is beyond 10x the run's 95th-percentile speed ({v95_rad_s:.3g} rad/s)"
-    bv = params.get("b_vis_Nms_rad", 0.0)
-    if span > 0.0 and bv * v95_rad_s > span:
-        out["b_vis_Nms_rad"] = f"viscous torque at the 95th-percentile speed ({bv * v95_rad_s:.3g} Nm) exceeds the target span"
-    for k in ("K_c_Nm_rad", "K_in_Nm_rad", "k_out_Nm_rad"):
-        if k in params and not 1e-3 <= params[k] <= 1e6:
-            out[k] = f"{params[k]:.3g} Nm/rad outside [1e-3, 1e6]"
-    return out

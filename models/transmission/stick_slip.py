@@ -8,21 +8,43 @@ angle on the testbed -- whose velocity ``v`` obeys the torque balance::
 
     c0 v + f + b_vis v = a(t) - kx x,          f = friction torque carried by the sheath [Nm]
 
-The friction torque is a state of its own (elasto-plastic, Dahl form)::
+The friction torque is a state of its own (elasto-plastic, generalised Dahl form with
+exponent ``i > 0``, dimensionless)::
 
-    df/dt = k_pre (v - |v| f / F(v)),   F(v) = tau_fc [1 + (zeta_s - 1) exp(-(v / eta_s)^2)]
+    df/dx = k_pre sgn(u) |u|^i,   u = 1 - sgn(v) f / F(v),
+    F(v) = tau_fc [1 + (zeta_s - 1) exp(-(v / eta_s)^2)]
 
 * stick: while ``|f|`` is below the capacity ``F`` the sheath holds the elastic state with
-  the presliding stiffness ``k_pre`` (``v = 0`` whenever the demanded friction does not
-  change; as ``k_pre -> inf`` this is the set-valued Coulomb stick of a rigid node);
+  the presliding stiffness ``k_pre 2^i`` right after a reversal [Nm/rad] (``v = 0`` whenever
+  the demanded friction does not change; as ``k_pre -> inf`` this is the set-valued Coulomb
+  stick of a rigid node);
 * breakaway where the demanded friction exceeds the capacity: ``f`` saturates at
   ``+-F(v)``, the eq-21 Stribeck-Coulomb law (``zeta_c = 1``) with the sign of the motion
   in place of the tanh (the state carries the stick phase the tanh only approximates).
+* the exponent shapes the stick-to-slip transition (the capacity mobilised progressively
+  along the sheath, as the distributed model's slip zone spreads from the input).
+  ``i = 1`` is Dahl's law: the stiffness falls in proportion to the capacity still unused,
+  ``f`` reaches ``F`` only asymptotically (travel scale ``F / k_pre``). ``i = 1/2`` is an
+  Iwan element with slip thresholds spread uniformly over ``[0, 2F]``: ``f`` is a parabola
+  in the travel. ``i < 1`` saturates after the finite travel
+  ``x_sat = |u0|^(1-i) F / ((1-i) k_pre)`` (``2^(1-i) F / ((1-i) k_pre)`` after a full
+  reversal, ``u0 = 2``); ``i -> 0`` is the elasto-plastic (Jenkins) element, stiffness
+  ``k_pre`` until ``f = F``. ``i > 1``: a stiff start that softens quickly and a long tail
+  (thresholds crowded at the low end, a few far above: ``i = 2`` approaches ``F``
+  hyperbolically, ``u = u0 / (1 + u0 k_pre x / F)``).
 
-Backward Euler over each sample interval ``dt``: the new velocity solves
-``(c0 + kx dt + b_vis) v + f_new(v) = a_i - kx x_{i-1}`` with
-``f_new = (f + k_pre dt v) / (1 + k_pre dt |v| / F(v))`` (a bracketed Newton iteration
-started at the previous velocity, so a Stribeck dip keeps the branch the motion is on).
+Time stepping over each sample interval ``dt``: the new velocity ``v`` is implicit
+(backward Euler), ``(c0 + kx dt + b_vis) v + f_new(v) = a_i - kx x_{i-1}``, solved by a
+bracketed Newton iteration started at the previous velocity (a Stribeck dip keeps the branch
+the motion is on). The friction over the step at that constant velocity:
+
+* ``i = 1``: backward Euler, ``f_new = (f + k_pre dt v) / (1 + k_pre dt |v| / F(v))``;
+* ``i != 1``: the exact solution at constant ``v`` (travel ``|v| dt``),
+  ``|u_new|^(1-i) = max(0, |u|^(1-i) - (1-i) k_pre |v| dt / F)``, sign of ``u`` kept
+  (:func:`dahl_u_update`; it tends to Dahl's exact ``u exp(-k_pre |v| dt / F)`` as
+  ``i -> 1``, which backward Euler approaches as ``dt -> 0``: ``i = 1`` keeps backward Euler
+  so the unit's earlier results are unchanged bit for bit).
+
 ``c0 + kx dt + b_vis > 0`` is required (a stiffness or a damping in every form).
 """
 
@@ -45,26 +67,54 @@ def capacity_Nm(v_rad_s: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: fl
 
 
 @njit(cache=True)
-def friction_update(f_Nm: float, v_rad_s: float, dt_s: float, k_pre_Nm_rad: float, tau_fc_Nm: float,
-                    zeta_s: float, eta_s_rad_s: float) -> float:
-    """Friction state after one backward-Euler step at velocity ``v`` [Nm].
+def dahl_u_update(u: float, travel_rad: float, k_pre_Nm_rad: float, F_Nm: float, dahl_exp: float) -> float:
+    """Unused capacity fraction ``u = 1 - sgn(v) f / F`` after the travel ``|v| dt`` [rad] in
+    one direction: the exact solution of ``du/dx = -(k_pre / F) sgn(u) |u|^i``,
+    ``i = dahl_exp``. ``i < 1``: ``|u|^(1-i)`` falls linearly and reaches 0 after a finite
+    travel; ``i = 1``: ``u exp(-k_pre x / F)``; ``i > 1``: ``|u|^(1-i)`` grows linearly (a
+    hyperbolic approach for ``i = 2``). The sign of ``u`` is kept (``u < 0``: ``f`` beyond a
+    capacity that fell, relaxing back to it). Needs ``F_Nm > 0``, ``dahl_exp > 0``."""
+    if u == 0.0 or travel_rad <= 0.0:
+        return u
+    a = k_pre_Nm_rad * travel_rad / F_Nm
+    e = 1.0 - dahl_exp
+    if abs(e) < 1e-9:
+        return u * math.exp(-a)
+    w = abs(u) ** e - e * a
+    if w <= 0.0:
+        return 0.0
+    r = w ** (1.0 / e)
+    return r if u > 0.0 else -r
 
-    ``df = k_pre (v - |v| f / F(v)) dt``: elastic (stick) with stiffness ``k_pre`` while
-    ``|f|`` is well below the capacity ``F``, saturating at ``+-F`` in slip.
+
+@njit(cache=True)
+def friction_update(f_Nm: float, v_rad_s: float, dt_s: float, k_pre_Nm_rad: float, tau_fc_Nm: float,
+                    zeta_s: float, eta_s_rad_s: float, dahl_exp: float = 1.0) -> float:
+    """Friction state after one step at velocity ``v`` [Nm] (module docstring: backward Euler
+    for ``dahl_exp = 1``, the exact constant-velocity solution otherwise).
+
+    ``df = k_pre sgn(u) |u|^i dx``: elastic (stick) with stiffness ``k_pre`` while ``|f|``
+    is well below the capacity ``F``, saturating at ``+-F`` in slip.
     """
     F = capacity_Nm(v_rad_s, tau_fc_Nm, zeta_s, eta_s_rad_s)
     if not F > 0.0:
         return 0.0
-    return (f_Nm + k_pre_Nm_rad * dt_s * v_rad_s) / (1.0 + k_pre_Nm_rad * dt_s * abs(v_rad_s) / F)
+    if dahl_exp == 1.0:
+        return (f_Nm + k_pre_Nm_rad * dt_s * v_rad_s) / (1.0 + k_pre_Nm_rad * dt_s * abs(v_rad_s) / F)
+    if v_rad_s == 0.0:
+        return f_Nm
+    sg = 1.0 if v_rad_s > 0.0 else -1.0
+    u = dahl_u_update(1.0 - sg * f_Nm / F, abs(v_rad_s) * dt_s, k_pre_Nm_rad, F, dahl_exp)
+    return sg * F * (1.0 - u)
 
 
 @njit(cache=True)
 def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: float, dt_s: float,
                   k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
-                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0) -> float:
+                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0, dahl_exp: float = 1.0) -> float:
     """Velocity of one backward-Euler step [rad/s]: the root of
     ``c v + f_new(v) + b_vis v + c2 v |v| = rhs`` (``f_new`` by :func:`friction_update` from
-    ``f``; ``c2 >= 0`` a drag growing with speed).
+    ``f`` with exponent ``dahl_exp``; ``c2 >= 0`` a drag growing with speed).
 
     Bracketed by ``(rhs -/+ M) / (c + b_vis)`` with ``M = max(|f|, zeta_s tau_fc)``; Newton
     steps (derivative without the Stribeck slope) safeguarded by bisection, started at the
@@ -83,8 +133,18 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
     kd = k_pre_Nm_rad * dt_s
     for _ in range(MAX_ITER):
         F = capacity_Nm(v, tau_fc_Nm, zeta_s, eta_s_rad_s)
-        den = 1.0 + kd * abs(v) / F if F > 0.0 else math.inf
-        fn = (f_Nm + kd * v) / den if F > 0.0 else 0.0
+        sg = 1.0 if v >= 0.0 else -1.0
+        if dahl_exp == 1.0:
+            den = 1.0 + kd * abs(v) / F if F > 0.0 else math.inf
+            fn = (f_Nm + kd * v) / den if F > 0.0 else 0.0
+            dfn = (kd * den - (f_Nm + kd * v) * kd * sg / F) / (den * den) if F > 0.0 else 0.0
+        elif F > 0.0:
+            # exact constant-velocity update; dfn/dv = kd sgn(u) |u_new|^i (Stribeck slope left out)
+            u_new = dahl_u_update(1.0 - sg * f_Nm / F, abs(v) * dt_s, k_pre_Nm_rad, F, dahl_exp)
+            fn = sg * F * (1.0 - u_new) if v != 0.0 else f_Nm
+            dfn = kd * abs(u_new) ** dahl_exp * (1.0 if u_new >= 0.0 else -1.0)
+        else:
+            fn, dfn = 0.0, 0.0
         g = ct * v + c2_Nms2_rad2 * v * abs(v) + fn - rhs_Nm
         if abs(g) <= 1e-10 * scale:
             return v
@@ -92,10 +152,7 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
             lo = v
         else:
             hi = v
-        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v)
-        if F > 0.0:
-            sg = 1.0 if v >= 0.0 else -1.0
-            dg += (kd * den - (f_Nm + kd * v) * kd * sg / F) / (den * den)
+        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v) + dfn
         v_new = v - g / dg if dg > 0.0 else 0.5 * (lo + hi)
         if not (lo < v_new < hi):
             v_new = 0.5 * (lo + hi)
@@ -109,7 +166,7 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
 def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad: np.ndarray, c0_Nms_rad: np.ndarray,
                   kx_Nm_rad: np.ndarray, k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
                   b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray,
-                  cap_scale: np.ndarray, c2_Nms2_rad2: float = 0.0) -> int:
+                  cap_scale: np.ndarray, c2_Nms2_rad2: float = 0.0, dahl_exp: float = 1.0) -> int:
     """Integrate the unit through concatenated runs (allocation-free).
 
     :param t_s: sample times [s] (increasing inside each run).
@@ -121,6 +178,7 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
     :param cap_scale: per-sample multiplier of the capacity ``tau_fc`` (effects acting on the
         friction: dwell, position, time, load), > 0; an empty array means 1 everywhere.
     :param c2_Nms2_rad2: drag ``c2 v |v|`` at speed [Nm s^2/rad^2].
+    :param dahl_exp: exponent ``i > 0`` of the friction law (1: Dahl, backward Euler, as before).
     :returns: the number of samples integrated (``len(t_s)`` unless a step failed: NaN
         velocity, non-increasing time).
     """
@@ -145,10 +203,10 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
             c = c0 + kx * dt
             tfc = tau_fc_Nm * cap_scale[i] if has_scale else tau_fc_Nm
             v = step_velocity(a_Nm[i] - kx * x, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
-                              b_vis_Nms_rad, c2_Nms2_rad2)
+                              b_vis_Nms_rad, c2_Nms2_rad2, dahl_exp)
             if not math.isfinite(v):
                 return i
-            f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s)
+            f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s, dahl_exp)
             x = x + dt * v
             out_x_rad[i] = x
             out_v_rad_s[i] = v
