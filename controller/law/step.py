@@ -158,13 +158,13 @@ S_V_PREV = S_FF_OUT + 1    # previous velocity sample [rad/s] (acceleration esti
 S_ACC = S_V_PREV + 1       # filtered acceleration [rad/s^2]
 S_ACC_RAW = S_ACC + 1      # last raw difference quotient, held between IMU samples [rad/s^2]
 S_ACC_N = S_ACC_RAW + 1    # cycles since the previous IMU sample
-S_ACC_GATE = S_ACC_N + 1   # rest gate of the inertia compensation, held between IMU samples
-S_FC_OUT = S_ACC_GATE + 1  # the feedforward after its slew limit [Nm]
+S_GATE = S_ACC_N + 1       # the debounced rest gate, held between IMU samples (read by the inertia
+                           # compensation and by the fade of kp and the damping)
+S_FC_OUT = S_GATE + 1  # the feedforward after its slew limit [Nm]
 S_DEFL_IN = S_FC_OUT + 1   # gated link velocity at the motor [rad/s], held between IMU samples
 S_DEFL_LINK = S_DEFL_IN + 1  # ... low-passed: the motor velocity the link's motion implies [rad/s]
 S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first cycle set it)
-S_FBG_IN = S_DEFL_REF + 1  # rest gate of kp and the damping, held between IMU samples
-S_FBG = S_FBG_IN + 1       # ... low-passed: the factor on kp and b
+S_FBG = S_DEFL_REF + 1     # the held rest gate low-passed: the factor on kp and b
 N_STATE = S_FBG + 1
 
 
@@ -193,7 +193,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC] = 0.0
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
-        st[S_ACC_GATE] = 0.0
+        st[S_GATE] = 0.0
         st[S_FC_OUT] = 0.0
         # a start in motion: the link-implied velocity starts where the link is (gated as below), so
         # the damping does not kick by -b dq_m on the first cycle
@@ -201,7 +201,6 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_DEFL_IN] = g0 * r.dq_out_rad_s / cfg[C_R_RATIO]
         st[S_DEFL_LINK] = st[S_DEFL_IN]
         st[S_DEFL_REF] = math.nan
-        st[S_FBG_IN] = 0.0
         st[S_FBG] = 0.0
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
@@ -211,7 +210,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     q_g = qb * (st[S_QF] + r.dq_out_rad_s * cfg[C_DT]) + (1.0 - qb) * r.q_out_rad
     st[S_QF] = q_g
     tau_g = gravity_hold_torque_Nm(cfg[C_MGL], q_g) if cfg[C_G_ON] != 0.0 else 0.0
-    # the rest gate on dq_out, for the feedforward and the inertia compensation, on each new IMU
+    # the rest gate on dq_out (feedforward, inertia compensation, fade of kp and b), on each new IMU
     # sample: it opens only on the second sample in a row outside its lower edge, so one noise
     # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
     gate = 0.0
@@ -220,6 +219,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
         st[S_FF_OUT] = 1.0 if g_now > 0.0 else 0.0
+        st[S_GATE] = gate
     if cfg[C_FF_ON] != 0.0 and r.imu_new != 0:
         t0 = cfg[C_FF_T0_FIXED] if cfg[C_FF_FIXED] != 0.0 else t0_meas
         fc = gate * friction_feedforward_Nm(
@@ -243,9 +243,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # ---- feedback
     g_fb = 1.0          # the factor on kp and the deflection damping: 1, or the faded rest gate
     if cfg[C_FBG_ON] != 0.0:
-        if r.imu_new != 0:
-            st[S_FBG_IN] = gate
-        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_FBG_IN])
+        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_GATE])
     e = tau_in_des - tau_in
     deriv = -cfg[C_KD_A1] * st[S_D] - cfg[C_KD_B0] * (tau_in - st[S_TIN_PREV])
     st[S_D] = deriv
@@ -266,10 +264,10 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
-    if cfg[C_JC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:     # inertia compensation: g J_c a, a the low-passed difference quotient
-        if r.imu_new != 0:  # g: the feedforward's debounced rest gate on the joint rate (0 at rest: one
-            # gyro-noise sample beyond 4 sigma would pass J_c x the differentiated noise for a sample)
-            st[S_ACC_GATE] = gate
+    # inertia compensation: g J_c a, a the low-passed difference quotient, g the feedforward's
+    # debounced rest gate on the joint rate, held (0 at rest: one gyro-noise sample beyond 4 sigma
+    # would otherwise pass J_c x the differentiated noise for a sample)
+    if cfg[C_JC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:
         if cfg[C_ACC_LINK] != 0.0:
             st[S_ACC_N] += 1.0
             if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
@@ -281,7 +279,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             st[S_V_PREV] = r.dq_m_rad_s
         # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
-        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_ACC_GATE] * st[S_ACC_RAW])
+        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
         if cfg[C_JC] != 0.0:
             tau_raw += cfg[C_JC] * acc
     if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
