@@ -22,7 +22,7 @@ from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect,
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.long_run_effects import SCREEN_MIN, LongRunCloser
-from capstan.models.closure.residual_trace import knots_for
+from capstan.models.closure.residual_trace import hat_weights, knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
@@ -106,11 +106,9 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
 
 def _trace_rows(x: np.ndarray, s: np.ndarray, kn: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Column indices and values of the trace design's four non-zeros per row: the hat basis
-    of ``x`` over ``kn`` (as :func:`hat_basis`: two neighbouring knots), as is and times ``s``."""
+    of ``x`` over ``kn`` (:func:`hat_weights`: two neighbouring knots), as is and times ``s``."""
     k = kn.shape[0]
-    xc = np.clip(x, kn[0], kn[-1])
-    j = np.clip(np.searchsorted(kn, xc, side="right") - 1, 0, k - 2)
-    w = (xc - kn[j]) / np.maximum(kn[j + 1] - kn[j], 1e-300)
+    j, w = hat_weights(x, kn)
     return [j, j + 1, k + j, k + j + 1], [1.0 - w, w, s * (1.0 - w), s * w]
 
 
@@ -199,7 +197,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3))
     t0 = time.perf_counter()
     trace = residual_trace(ds, train, test)
-    ds.timings_s["trace"] = time.perf_counter() - t0
+    _tick(ds, "trace", t0)
     emp = [d["signal"] for d in trace][:N_EMPIRICAL]
     remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train))
     labels = test_blocks(test)

@@ -28,12 +28,18 @@ from capstan.models.closure.signals import Signals
 N_KNOTS = 40
 
 
+def hat_weights(x: np.ndarray, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(j, w)``: each value's left knot index and its weight on the right knot, so the
+    piecewise-linear basis is ``1 - w`` at knot ``j`` and ``w`` at ``j + 1`` (constant beyond the ends)."""
+    xc = np.clip(x, knots[0], knots[-1])
+    j = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, knots.shape[0] - 2)
+    return j, (xc - knots[j]) / np.maximum(knots[j + 1] - knots[j], 1e-300)
+
+
 def hat_basis(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
     """Piecewise-linear interpolation basis (n x len(knots)); constant beyond the ends."""
     n, k = x.shape[0], knots.shape[0]
-    xc = np.clip(x, knots[0], knots[-1])
-    j = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, k - 2)
-    w = (xc - knots[j]) / np.maximum(knots[j + 1] - knots[j], 1e-300)
+    j, w = hat_weights(x, knots)
     B = np.zeros((n, k))
     rows = np.arange(n)
     B[rows, j] = 1.0 - w
