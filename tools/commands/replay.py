@@ -3,9 +3,9 @@ the logged measurements.
 
 With the logged config the replayed commands must equal the logged ones bit for bit;
 the command reports max |dtau_m| (0 expected) and exits 1 otherwise, saying whether the
-control law changed since the log was written (the log's ``law_sha256`` against this build's). With an override
-(a YAML mapping merged key by key over the logged config) it writes a what-if log and
-a plot. The replay is open loop: the plant does not react to the what-if commands, the
+control law changed since the log was written (the log's ``law_sha256`` against this
+build's). With an override (a YAML mapping merged key by key over the logged config) it
+writes a what-if log and a plot. The replay is open loop: the plant does not react to the what-if commands, the
 logged measurements are fed unchanged.
 
 Only the fields the loop writes before the step (``cycle`` and
@@ -131,9 +131,7 @@ def run(args: argparse.Namespace) -> int:
         # which control law wrote the log and which replays it (None: the log does not say)
         "law_sha256_logged": data.meta.get("law_sha256"), "law_sha256_replay": law_fingerprint(),
     }
-    report["law_changed"] = (None if not report["law_sha256_logged"] or UNAVAILABLE in
-                             (report["law_sha256_logged"], report["law_sha256_replay"])
-                             else report["law_sha256_logged"] != report["law_sha256_replay"])
+    report["law_changed"] = law_changed(report["law_sha256_logged"], report["law_sha256_replay"])
     if override is not None:
         out = Path(args.out) if args.out else paths[0].with_name(paths[0].stem + "_whatif.mcap")
         mlog = McapLog(out.parent, out.stem, res.replayed.dtype, yaml.safe_dump(cfg, sort_keys=False),
@@ -170,13 +168,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def law_changed(logged: str | None, replay: str) -> bool | None:
+    """Whether the control law changed since the log was written, from the law fingerprints of
+    the log and of this build (:func:`capstan.controller.law.fingerprint.law_fingerprint`);
+    None when either is unknown."""
+    if not logged or UNAVAILABLE in (logged, replay):
+        return None
+    return logged != replay
+
+
 def law_verdict(logged: str | None, replay: str) -> str:
-    """What a replay that is not bit-exact means, from the law fingerprints of the log and of
-    this build (:func:`capstan.controller.law.fingerprint.law_fingerprint`)."""
-    if not logged or logged == UNAVAILABLE or replay == UNAVAILABLE:
+    """What a replay that is not bit-exact means (:func:`law_changed`)."""
+    changed = law_changed(logged, replay)
+    if changed is None:
         return ("the log does not record which control law wrote it (law_sha256), so a law "
                 "change since cannot be told from an altered log")
-    if logged != replay:
+    if changed:
         return (f"the log was written by a different control law (law_sha256 {logged[:12]} in the "
                 f"log, {replay[:12]} here): the difference is the law's change; replay with the "
                 "capstan version that wrote the log to check the log itself")
