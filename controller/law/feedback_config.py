@@ -39,7 +39,8 @@ class FeedbackGains:
     #: damping of the transmission's deflection rate [Nm s/rad] (0 = off):
     #: ``- deflection_damping_Nms_rad * (dq_m - (r_out/r_in) LP[g dq_out])`` on the command, dq_m the
     #: drive's motor velocity (every cycle), dq_out the IMU rate (per sample, held) low-passed at
-    #: ``deflection_link_cutoff_hz`` [Hz] and gated at rest like the inertia compensation: it damps
+    #: ``deflection_link_cutoff_hz`` [Hz] (gated at rest like the inertia compensation only when
+    #: ``rest_gate_cutoff_hz`` is 0; with the fade the whole term is faded out at rest instead): it damps
     #: the motor against the cable (the stick and sheath-stick modes) and is 0 in a steady motion.
     #: The deflection the torque reference asks for is not braked: its rate
     #: ``d/dt LP[tau_in_des - gravity] / plant.stiffness_Nm_rad`` (low-pass at

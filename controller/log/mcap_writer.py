@@ -22,9 +22,9 @@ indexes) refuses a chunk index without message indexes ("Encountered a chunk ind
 without message indexes and non-zero start and end times", ``ChunkCursor``'s
 constructor), and reads only the messages they list (``readMessages`` takes each
 message's offset from ``ChunkCursor.loadMessageIndexes``). The Python ``mcap`` reader
-would read chunks from chunk indexes alone; Foxglove decides the layout. ``message_index=False`` leaves them out (and then the chunk indexes too, so
-such readers fall back to streaming the file) for offline files that only this project
-reads.
+would read chunks from chunk indexes alone; Foxglove decides the layout.
+``message_index=False`` leaves them out (and then the chunk indexes too, so such readers
+fall back to streaming the file) for offline files that only this project reads.
 
 Schemas, channels and metadata are written in the data section before the first chunk
 (so a file cut off by a kill is read by streaming) and repeated in the summary.

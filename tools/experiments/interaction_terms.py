@@ -10,14 +10,18 @@ not a loop the daemon would start, whatever its mean |tau_h|.
 
 Variants (:data:`TERM_VARIANTS`):
 
-* ``shipped`` — feedforward + integral trim + inertia compensation, 2-cycle delay, IMU 400 Hz;
+* ``shipped`` — feedforward + kp with the deflection-rate damping (faded in with motion) +
+  integral trim + inertia compensation, 2-cycle delay, IMU 400 Hz;
+* ``no_deflection_damping`` (kp kept) / ``no_torque_feedback`` (kp 0, no damping, J_c 0.3: the
+  loop before the damping) / ``kp_always_on`` (no fade at rest);
 * ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
 * ``narrow_rest_gate`` — the feedforward's rest band at its smallest accepted value (2 x the
   gyro noise), i.e. the gate's onset delay almost removed;
 * ``no_delay`` — the command acts in the cycle it is computed (the lock-step idealisation);
 * ``imu_1khz`` — the IMU (gate, feedforward and differentiated acceleration) at 1 kHz;
 * ``gravity_only`` — no friction feedforward, no inertia compensation: the uncompensated joint
-  of the same loop (the like-for-like baseline);
+  of the same loop (the like-for-like baseline); ``gravity_only_no_torque_feedback`` the same
+  for the loop before;
 * ``paper_pid_gravity_only`` — the paper's gravity-only PID with its lock-step gains (kp 5): the
   experiment's historical "uncompensated" row. Its torque loop hides the motor inertia, but it
   misses the margins with the delay (it rings at the sheath-stick mode in HIL).
