@@ -243,8 +243,8 @@ def test_hil_plant_carries_the_effect_and_the_close_fragment_runs_in_the_daemon(
     # (the baseline's transition shape: dahl_exp and the elastic path's damping d_in)
     extra = not_injected(summary["selected"], CFG["hil"]["plant"]["effects"])
     assert not [e for e in extra if not e.startswith("empirical:")], summary["selected"]
-    # an empirical curve besides is a known shortfall (1 of 9 runs: empirical:acceleration,
-    # -11 %): reported with the magnitude check below
+    # an empirical curve besides is a known shortfall (2 of 10 runs: empirical:acceleration,
+    # -11 % and -13 %): reported with the magnitude check below
     extra_empirical = [(s["effect"], round(s["improvement"], 3)) for s in summary["selected"]
                        if s["effect"] in extra]
     # the learned breakaway excess over the hand's rests, against the injected one: amp x the
