@@ -32,7 +32,10 @@ class FeedbackGains:
     #: inertia compensation [kg m^2] (0 = off): ``+ inertia_comp_kg_m2 * a`` on the command, ``a``
     #: the link's (IMU rate) or the motor's (drive velocity) acceleration at the motor side
     #: [rad/s^2], differentiated and low-passed at ``acceleration_cutoff_hz`` [Hz], off at rest
-    #: (the feedforward's rest band); the hand feels ``J_m - inertia_comp_kg_m2``
+    #: (the feedforward's rest band); the hand feels ``J_m - inertia_comp_kg_m2``. From the motor's
+    #: acceleration and with ``rest_gate_cutoff_hz`` > 0 it is also faded in and out with kp and the
+    #: deflection damping (without that damping the loop with it rings the stick mode: it acts as a
+    #: smaller motor inertia, which moves the deflection modes up)
     inertia_comp_kg_m2: float = 0.2
     acceleration_cutoff_hz: float = 5.0
     acceleration_source: AccelerationSource = AccelerationSource.LINK
@@ -58,7 +61,8 @@ class FeedbackGains:
     #: (5 Hz) and ``tau = 1 / (2 pi deflection_link_cutoff_hz) + dt`` the low-pass's and the IMU hold's
     #: lag: a lagging link velocity reads as deflection while the joint accelerates and brakes the hand
     #: like an inertia b tau; compensated, the low-pass can keep the gyro noise and the 400 Hz hold's
-    #: staircase off the command. Needs ``acceleration_source: link``. It adds link-acceleration feedback
+    #: staircase off the command. The link's acceleration also with ``acceleration_source: motor`` (then
+    #: differentiated and filtered on its own, as J_c's would be with the link source). It adds link-acceleration feedback
     #: like J_c: with it J_c 0.3 misses the phase margin (43 deg), J_c 0.2 meets it (50 deg, GM 9.1 dB)
     deflection_link_lag_compensation: bool = True
 
@@ -94,11 +98,13 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
                   min_exclusive=True, max_value=0.45 * nyq),
         get_float(c, "rest_gate_cutoff_hz", p, fd.rest_gate_cutoff_hz, min_value=0.0, max_value=0.45 * nyq),
         lag)
-    if lag and out.deflection_damping_Nms_rad > 0.0 and source != AccelerationSource.LINK:
-        raise ConfigError(f"{p}.deflection_link_lag_compensation",
-                          "needs acceleration_source: link (it leads the link's velocity by the link's "
-                          "acceleration); set it false with the motor source")
     return out
+
+
+def inertia_comp_faded(fb: FeedbackGains) -> bool:
+    """True when the inertia compensation is faded in and out with kp and the deflection damping:
+    from the motor's acceleration with ``rest_gate_cutoff_hz`` > 0."""
+    return fb.acceleration_source == AccelerationSource.MOTOR and fb.rest_gate_cutoff_hz > 0.0
 
 
 def deflection_link_lead_s(cfg: Any) -> float:

@@ -152,8 +152,9 @@ def plant_link_velocity_continuous(p: PlantPoint) -> TF:
     return np.array([K, 0.0]), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
 
 
-def acceleration_filter(cfg: ControllerConfig) -> TF:
-    """``A(z)``: velocity -> the step's acceleration [1/s].
+def acceleration_filter(cfg: ControllerConfig, source: AccelerationSource | None = None) -> TF:
+    """``A(z)``: velocity -> the step's acceleration [1/s], of ``source`` (default: the inertia
+    compensation's, ``feedback.acceleration_source``; the deflection damping's lead always takes the link's).
 
     Motor source: ``(1 - a)(1 - z^-1) / (T (1 - a z^-1))``. Link source: the IMU's rate
     is differentiated per 400 Hz sample and held; modelled at 1 kHz as the same difference
@@ -161,7 +162,7 @@ def acceleration_filter(cfg: ControllerConfig) -> TF:
     """
     a = lowpass_alpha(cfg.feedback.acceleration_cutoff_hz, cfg.dt_s)
     g = (1.0 - a) / cfg.dt_s
-    if cfg.feedback.acceleration_source == AccelerationSource.LINK:
+    if (cfg.feedback.acceleration_source if source is None else source) == AccelerationSource.LINK:
         g /= cfg.plant.r_in_m / cfg.plant.r_out_m
         return np.array([0.0, g, -g]), np.array([1.0, -a])
     return np.array([g, -g]), np.array([1.0, -a])
@@ -222,7 +223,8 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
             defl = defl - freq_response(_mul(deflection_link_filter(cfg), pvo), f_hz, cfg.dt_s)
             lead = deflection_link_lead_s(cfg)      # + lead x the link's acceleration (J_c's filter A)
             if lead != 0.0:
-                defl = defl - lead * freq_response(_mul(acceleration_filter(cfg), pvo), f_hz, cfg.dt_s)
+                defl = defl - lead * freq_response(_mul(acceleration_filter(cfg, AccelerationSource.LINK), pvo),
+                                                   f_hz, cfg.dt_s)
         loop = loop + b * defl
     return c, loop
 
@@ -309,17 +311,22 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     ag, bg, cg = plant_state_space(p, cfg.dt_s)
     jc = fb.inertia_comp_kg_m2
     lead = deflection_link_lead_s(cfg)
-    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 or lead != 0.0 else (np.array([0.0]), np.array([1.0])))
+    none = (np.array([0.0]), np.array([1.0]))
     link = fb.acceleration_source == AccelerationSource.LINK
+    # J_c's acceleration (its source), and the link's for the lead when J_c takes the motor's
+    Acc = _Block(acceleration_filter(cfg) if jc != 0.0 or (lead != 0.0 and link) else none)
+    AccL = _Block(acceleration_filter(cfg, AccelerationSource.LINK) if lead != 0.0 and not link else none)
     v_index = (3 if p.slip else -1) if link else 1      # plant states (q_m, dq_m[, q_o, dq_o])
     b_defl = fb.deflection_damping_Nms_rad
     Hl = _Block(deflection_link_filter(cfg) if b_defl != 0.0 else (np.array([0.0]), np.array([1.0])))
     d = int(delay_cycles)
     # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay,
-    # motor acceleration filter, the link velocity's filter of the deflection-rate damping
+    # motor acceleration filter, the link velocity's filter of the deflection-rate damping, the link's
+    # acceleration filter of its lead (only with J_c on the motor's)
     # (with ki = 0 the step's integral stays 0: a constant, not a mode of the loop, so no state)
     integral = not ldo and fb.ki_1_s != 0.0
-    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n]
+    sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
+             AccL.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -344,7 +351,8 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc
         v_link, out[10] = Hl.step(xs[10], float(xs[0][3]) if p.slip else 0.0)
-        u -= b_defl * (float(xs[0][1]) - v_link - lead * acc)
+        acc_l, out[11] = AccL.step(xs[11], float(xs[0][3]) if p.slip else 0.0)
+        u -= b_defl * (float(xs[0][1]) - v_link - lead * (acc if link else acc_l))
         if ldo:
             out[6] = np.array([u])      # the observer's u[k-1] is the applied command, J_c term included
         if d:

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from capstan.controller.law.config import ControllerConfig, StabilitySettings
+from capstan.controller.law.feedback_config import inertia_comp_faded
 from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, freq_response,
                                                loop_response, reference_tf)
 from capstan.models.common.errors import ConfigError
@@ -71,8 +72,8 @@ class StabilityReport:
     delay_cycles: int
     min_phase_margin_deg: float
     min_gain_margin_dB: float
-    #: with ``feedback.rest_gate_cutoff_hz`` > 0 the loop fades kp and the deflection damping in and
-    #: out together: (factor, worst phase margin [deg], worst gain margin [dB], ok) at the faded gains
+    #: with ``feedback.rest_gate_cutoff_hz`` > 0 the loop fades kp and the deflection damping (and J_c
+    #: from the motor's acceleration) in and out together: (factor, worst phase margin [deg], worst gain margin [dB], ok) at the faded gains
     faded: tuple[tuple[float, float, float, bool], ...] = ()
 
     @property
@@ -251,10 +252,12 @@ def analyse(cfg: ControllerConfig) -> StabilityReport:
         raise ConfigError("controller", f"the torque loop cannot be analysed: {exc}") from exc
     fb = cfg.feedback
     faded = []
-    if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0):
-        for g in FADE_FACTORS:      # the gate's low-pass moves kp and b together through these
-            sub = analyse(replace(cfg, feedback=replace(fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0,
-                                                        deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad)))
+    if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0
+                                        or (inertia_comp_faded(fb) and fb.inertia_comp_kg_m2 != 0.0)):
+        for g in FADE_FACTORS:      # the gate's low-pass moves kp, b (and a motor-source J_c) together
+            sub = analyse(replace(cfg, feedback=replace(
+                fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0, deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad,
+                inertia_comp_kg_m2=(g if inertia_comp_faded(fb) else 1.0) * fb.inertia_comp_kg_m2)))
             faded.append((g, sub.worst_phase_margin_deg, sub.worst_gain_margin_dB, sub.ok))
     return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded))
 

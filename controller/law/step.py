@@ -27,7 +27,8 @@ Control law (per cycle, ``k``)::
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
     both: tau_m += J_c A[g a]      inertia compensation (feedback.inertia_comp_kg_m2): a the
                                    link's (IMU rate, per sample) or the motor's velocity's backward
-                                   difference / dt, A a 1st-order low-pass
+                                   difference / dt (the motor's: x g_fb, faded with kp and b, below),
+                                   A a 1st-order low-pass
                                    (feedback.acceleration_cutoff_hz); the loop then
                                    sees J_m - J_c (controller/law/loop_model.py checks it);
                                    g the feedforward's rest gate on dq_out (opening on the second IMU
@@ -165,7 +166,9 @@ S_DEFL_IN = S_FC_OUT + 1   # gated link velocity at the motor [rad/s], held betw
 S_DEFL_LINK = S_DEFL_IN + 1  # ... low-passed: the motor velocity the link's motion implies [rad/s]
 S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first cycle set it)
 S_FBG = S_DEFL_REF + 1     # the held rest gate low-passed: the factor on kp and b
-N_STATE = S_FBG + 1
+S_VM_PREV = S_FBG + 1      # previous motor velocity [rad/s] (J_c from the motor's acceleration)
+S_ACC_M = S_VM_PREV + 1    # the motor's filtered acceleration [rad/s^2] (J_c's, acceleration_source motor)
+N_STATE = S_ACC_M + 1
 
 
 @njit(cache=True)
@@ -189,7 +192,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_RAW_PREV] = math.nan
         st[S_QF] = r.q_out_rad
         st[S_FF_OUT] = 1.0 if rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) > 0.0 else 0.0
-        st[S_V_PREV] = r.dq_out_rad_s if cfg[C_ACC_LINK] != 0.0 else r.dq_m_rad_s
+        st[S_V_PREV] = r.dq_out_rad_s
+        st[S_VM_PREV] = r.dq_m_rad_s
+        st[S_ACC_M] = 0.0
         st[S_ACC] = 0.0
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
@@ -267,21 +272,24 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # inertia compensation: g J_c a, a the low-passed difference quotient, g the feedforward's
     # debounced rest gate on the joint rate, held (0 at rest: one gyro-noise sample beyond 4 sigma
     # would otherwise pass J_c x the differentiated noise for a sample)
-    if cfg[C_JC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:
-        if cfg[C_ACC_LINK] != 0.0:
-            st[S_ACC_N] += 1.0
-            if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
-                st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
-                st[S_V_PREV] = r.dq_out_rad_s
-                st[S_ACC_N] = 0.0
-        else:
-            st[S_ACC_RAW] = (r.dq_m_rad_s - st[S_V_PREV]) / cfg[C_DT]
-            st[S_V_PREV] = r.dq_m_rad_s
+    # the link's acceleration (S_ACC): J_c's with the link source, and the deflection damping's lead
+    if (cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0) or cfg[C_DEFL_LEAD] != 0.0:
+        st[S_ACC_N] += 1.0
+        if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
+            st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
+            st[S_V_PREV] = r.dq_out_rad_s
+            st[S_ACC_N] = 0.0
         # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
         # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
         acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
-        if cfg[C_JC] != 0.0:
+        if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0:
             tau_raw += cfg[C_JC] * acc
+    if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] == 0.0:
+        # the motor's acceleration, every cycle: the loop then sees the motor inertia J_m - J_c, which
+        # without the deflection damping rings the stick mode, so it is faded in with kp and b (g_fb)
+        acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (r.dq_m_rad_s - st[S_VM_PREV]) / cfg[C_DT])
+        st[S_VM_PREV] = r.dq_m_rad_s
+        tau_raw += g_fb * cfg[C_JC] * acc_m
     if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
         if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, low-passed). At rest the gyro's noise
             # is kept off by g_fb; without it (rest_gate_cutoff_hz 0), by gating the link's rate like J_c. Not
