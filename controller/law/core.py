@@ -22,8 +22,8 @@ from numba import njit
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, Placement, PretensionSource, TorqueLoop
 from capstan.controller.law.feedforward import friction_torque_per_N
 from capstan.controller.law.learned_effects import pack_block
-from capstan.controller.law.ldo import derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients, \
-    qpinv_filter_coefficients
+from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
+                                        q_filter_coefficients, qpinv_filter_coefficients)
 from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.records import FaultBits, new_record
 from capstan.controller.law import step as _s
@@ -52,6 +52,8 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_KP] = fb.kp
     c[_s.C_KD_B0], c[_s.C_KD_A1] = derivative_filter_coefficients(fb.kd_s, fb.derivative_cutoff_hz, dt)
     c[_s.C_KI_DT] = fb.ki_1_s * dt
+    c[_s.C_BAND_GAIN] = fb.band_gain
+    c[_s.C_BAND_SOS:_s.C_BAND_SOS + 10] = band_pass_sos(fb.band_low_hz, fb.band_high_hz, dt).ravel()
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0

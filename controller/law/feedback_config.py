@@ -65,6 +65,13 @@ class FeedbackGains:
     #: differentiated and filtered on its own, as J_c's would be with the link source). It adds link-acceleration feedback
     #: like J_c: with it J_c 0.3 misses the phase margin (43 deg), J_c 0.2 meets it (50 deg, GM 9.1 dB)
     deflection_link_lag_compensation: bool = True
+    #: extra gain on the tau_in error in a band [Nm/Nm] (0 = off): ``+ band_gain * BP[e]`` on the command,
+    #: BP a 4th-order Butterworth band-pass ``band_low_hz``-``band_high_hz`` [Hz] (the strokes' band).
+    #: Loop gain where the hand moves, not at the sheath-stick mode (13-30 Hz, where kp is capped) nor at
+    #: the free link's slow mode in slip (0.2 Hz, where an integral's lag undamps it); faded with kp
+    band_gain: float = 0.0
+    band_low_hz: float = 0.5
+    band_high_hz: float = 2.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -75,7 +82,8 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
     reject_unknown(c, {"kp", "kd_s", "derivative_cutoff_hz", "ki_1_s", "integral_limit_Nm",
                        "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source",
                        "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz",
-                       "rest_gate_cutoff_hz", "deflection_link_lag_compensation"}, p)
+                       "rest_gate_cutoff_hz", "deflection_link_lag_compensation", "band_gain", "band_low_hz",
+                       "band_high_hz"}, p)
     source = AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
                                            fd.acceleration_source.name.lower()).upper()]
     lag = get_bool(c, "deflection_link_lag_compensation", p, fd.deflection_link_lag_compensation)
@@ -97,7 +105,12 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "deflection_reference_cutoff_hz", p, fd.deflection_reference_cutoff_hz, min_value=0.0,
                   min_exclusive=True, max_value=0.45 * nyq),
         get_float(c, "rest_gate_cutoff_hz", p, fd.rest_gate_cutoff_hz, min_value=0.0, max_value=0.45 * nyq),
-        lag)
+        lag,
+        get_float(c, "band_gain", p, fd.band_gain, min_value=0.0, max_value=100.0),
+        get_float(c, "band_low_hz", p, fd.band_low_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq),
+        get_float(c, "band_high_hz", p, fd.band_high_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq))
+    if out.band_high_hz <= out.band_low_hz:
+        raise ConfigError(f"{p}.band_high_hz", f"must be above band_low_hz {out.band_low_hz} Hz, got {out.band_high_hz}")
     return out
 
 

@@ -122,6 +122,21 @@ def derivative_filter_coefficients(kd_s: float, cutoff_hz: float, dt_s: float) -
     return kd_s * wd * k / (k + wd), (wd - k) / (k + wd)
 
 
+def band_pass_sos(low_hz: float, high_hz: float, dt_s: float) -> np.ndarray:
+    """The torque loop's band gain filter: a 4th-order Butterworth band-pass ``low_hz``-``high_hz``
+    [Hz] (unit gain in the band, 0 at DC and Nyquist) as two biquads, rows ``b0 b1 b2 a1 a2``
+    (scipy ``butter(2, ..., output="sos")``, ``a0`` = 1 dropped).
+
+    :raises ValueError: unless 0 < low_hz < high_hz < Nyquist.
+    """
+    from scipy import signal
+    nyq = 0.5 / dt_s
+    if not 0.0 < low_hz < high_hz < nyq:
+        raise ValueError(f"band pass needs 0 < low < high < {nyq:g} Hz, got {low_hz:g}-{high_hz:g} Hz")
+    sos = signal.butter(2, [low_hz, high_hz], btype="band", fs=1.0 / dt_s, output="sos")
+    return np.ascontiguousarray(sos[:, [0, 1, 2, 4, 5]])
+
+
 def lowpass_alpha(cutoff_hz: float, dt_s: float) -> float:
     """Pole ``exp(-w T)`` of the first-order low-pass ``y += (1 - alpha)(x - y)``; 0 = off."""
     if cutoff_hz <= 0.0:
@@ -148,6 +163,16 @@ def biquad_init(cfg: np.ndarray, ci: int, st: np.ndarray, si: int, x0: float) ->
     """Set the biquad state to its steady state for a constant input ``x0`` (unit DC gain)."""
     st[si + 1] = (cfg[ci + 2] - cfg[ci + 4]) * x0
     st[si] = (cfg[ci + 1] - cfg[ci + 3]) * x0 + st[si + 1]
+
+
+@njit(cache=True)
+def biquad_init_steady(cfg: np.ndarray, ci: int, st: np.ndarray, si: int, x0: float) -> float:
+    """Set the biquad state to its steady state for a constant input ``x0`` (any DC gain); returns
+    the steady output ``H(1) x0``."""
+    y0 = (cfg[ci] + cfg[ci + 1] + cfg[ci + 2]) / (1.0 + cfg[ci + 3] + cfg[ci + 4]) * x0
+    st[si + 1] = cfg[ci + 2] * x0 - cfg[ci + 4] * y0
+    st[si] = cfg[ci + 1] * x0 - cfg[ci + 3] * y0 + st[si + 1]
+    return y0
 
 
 @njit(cache=True)

@@ -39,8 +39,8 @@ from scipy import signal
 
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
 from capstan.controller.law.feedback_config import deflection_link_lead_s
-from capstan.controller.law.ldo import (derivative_filter_coefficients, lowpass_alpha, q_filter_coefficients,
-                                        qpinv_filter_coefficients)
+from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
+                                        q_filter_coefficients, qpinv_filter_coefficients)
 
 TF = tuple[np.ndarray, np.ndarray]
 
@@ -77,11 +77,26 @@ def derivative_filter(cfg: ControllerConfig) -> TF:
     return np.array([b0, -b0]), np.array([1.0, a1])
 
 
+def band_filter(cfg: ControllerConfig) -> TF:
+    """``k_b BP(z)``: the band gain on the error (``feedback.band_gain``; 0 when off), the step's two
+    biquads (:func:`capstan.controller.law.ldo.band_pass_sos`) multiplied out."""
+    fb = cfg.feedback
+    if fb.band_gain == 0.0:
+        return np.array([0.0]), np.array([1.0])
+    sos = band_pass_sos(fb.band_low_hz, fb.band_high_hz, cfg.dt_s)
+    out: TF = (np.array([fb.band_gain]), np.array([1.0]))
+    for b0, b1, b2, a1, a2 in sos:
+        out = _mul(out, (np.array([b0, b1, b2]), np.array([1.0, a1, a2])))
+    return out
+
+
 def controller_tf(cfg: ControllerConfig) -> TF:
     """Feedback path ``C(z)``: measured tau_in -> command u (sign: ``u = -C tau_in + ...``)."""
     F = tau_in_filter(cfg)
     fb = cfg.feedback
     inner = _add((np.array([fb.kp]), np.array([1.0])), derivative_filter(cfg))
+    if fb.band_gain != 0.0:
+        inner = _add(inner, band_filter(cfg))
     if cfg.torque_loop == TorqueLoop.LDO:
         bp, ap = qpinv_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s, cfg.plant.stiffness_Nm_rad,
                                            cfg.plant.motor_inertia_kg_m2, cfg.plant.motor_damping_Nms_rad)
@@ -97,13 +112,15 @@ def controller_tf(cfg: ControllerConfig) -> TF:
 
 
 def reference_tf(cfg: ControllerConfig) -> TF:
-    """Open path ``R(z)`` from the torque reference to u: ``(1 + kp) / (1 - Q F z^-1)`` (LDO)."""
-    g = 1.0 + cfg.feedback.kp
+    """Open path ``R(z)`` from the torque reference to u: ``(1 + kp + k_b BP) / (1 - Q F z^-1)`` (LDO)."""
+    g: TF = (np.array([1.0 + cfg.feedback.kp]), np.array([1.0]))
+    if cfg.feedback.band_gain != 0.0:
+        g = _add(g, band_filter(cfg))
     if cfg.torque_loop != TorqueLoop.LDO:
-        return np.array([g]), np.array([1.0])
+        return g
     bq, aq = q_filter_coefficients(cfg.q_cutoff_hz, cfg.dt_s)
     qf = _mul((bq, aq), tau_in_filter(cfg))
-    return g * qf[1], _padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0)
+    return _mul(g, (qf[1], _padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0)))
 
 
 @dataclass(frozen=True)
@@ -322,11 +339,12 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     d = int(delay_cycles)
     # plant, tau_in filter, derivative, Q P^-1, observer's filter of u[k-1], Q, u[k-1], integral, delay,
     # motor acceleration filter, the link velocity's filter of the deflection-rate damping, the link's
-    # acceleration filter of its lead (only with J_c on the motor's)
+    # acceleration filter of its lead (only with J_c on the motor's), the band gain's band-pass
     # (with ki = 0 the step's integral stays 0: a constant, not a mode of the loop, so no state)
     integral = not ldo and fb.ki_1_s != 0.0
+    Bd = _Block(band_filter(cfg))
     sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
-             AccL.n]
+             AccL.n, Bd.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -337,16 +355,17 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         tf_, out[1] = F1.step(xs[1], y)
         dd, out[2] = Dd.step(xs[2], tf_)
         qp, out[3] = QP.step(xs[3], tf_)
+        bd, out[12] = Bd.step(xs[12], tf_)      # the band gain on the error: -k_b BP tau_in
         if ldo:
             m, out[4] = F2.step(xs[4], float(xs[6][0]))
             q, out[5] = Q.step(xs[5], m)
             out[7] = xs[7]
-            u = -(fb.kp * tf_ + dd + qp) + q
+            u = -(fb.kp * tf_ + dd + qp + bd) + q
         else:
             out[4], out[5], out[6] = xs[4], xs[5], xs[6]
             integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_ if integral else 0.0
             out[7] = np.array([integ]) if integral else xs[7]
-            u = -(fb.kp * tf_ + dd) + integ
+            u = -(fb.kp * tf_ + dd + bd) + integ
         v = float(xs[0][v_index]) if v_index >= 0 else 0.0
         acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc

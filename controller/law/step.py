@@ -22,6 +22,8 @@ Control law (per cycle, ``k``)::
     e        = tau_in_des - tau_in
     C e      = kp e - D tau_in     derivative on the measurement only: the reference jumps
                                    at 400 Hz (feedforward) and a derivative on it would kick
+               + k_b BP[e]         band gain (feedback.band_gain, faded like kp): BP a 4th-order
+                                   band-pass over the strokes' band (0.5-2 Hz), 0 at DC
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
@@ -86,7 +88,7 @@ from numba import njit
 
 from capstan.controller.law.feedforward import friction_feedforward_Nm, rest_gate
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
-from capstan.controller.law.ldo import biquad_init, biquad_step, lowpass_step
+from capstan.controller.law.ldo import biquad_init, biquad_init_steady, biquad_step, lowpass_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
 from capstan.models.transmission.link import gravity_hold_torque_Nm
 
@@ -136,7 +138,9 @@ C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection ra
 C_FBG_ON = 50           # 1.0 = kp and the deflection damping act only in motion (feedback.rest_gate_cutoff_hz > 0)
 C_FBG_ALPHA = 51        # pole of the low-pass that fades them in and out
 C_DEFL_LEAD = 52        # lead on the link's velocity in the damping [s] (0 = off): + lead x the link acceleration
-N_CFG = 53              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_BAND_GAIN = 53        # extra gain on the error in a band [Nm/Nm] (feedback.band_gain; 0 = off)
+C_BAND_SOS = 54         # 2 x 5 coefficients of its band-pass (two biquads, ldo.band_pass_sos)
+N_CFG = 64              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -168,7 +172,8 @@ S_DEFL_REF = S_DEFL_LINK + 1  # low-passed tau_in_des [Nm] (NaN until the first 
 S_FBG = S_DEFL_REF + 1     # the held rest gate low-passed: the factor on kp and b
 S_VM_PREV = S_FBG + 1      # previous motor velocity [rad/s] (J_c from the motor's acceleration)
 S_ACC_M = S_VM_PREV + 1    # the motor's filtered acceleration [rad/s^2] (J_c's, acceleration_source motor)
-N_STATE = S_ACC_M + 1
+S_BAND = S_ACC_M + 1       # 2 x 2 biquad states of the band-pass on the error (NaN until the first cycle set them)
+N_STATE = S_BAND + 4
 
 
 @njit(cache=True)
@@ -207,6 +212,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_DEFL_LINK] = st[S_DEFL_IN]
         st[S_DEFL_REF] = math.nan
         st[S_FBG] = 0.0
+        st[S_BAND] = math.nan
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -254,6 +260,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     st[S_D] = deriv
     st[S_TIN_PREV] = tau_in
     fb = g_fb * cfg[C_KP] * e + deriv
+    if cfg[C_BAND_GAIN] != 0.0:     # + g_fb k_b BP[e]: loop gain in the strokes' band (0 at DC)
+        if math.isnan(st[S_BAND]):
+            biquad_init_steady(cfg, C_BAND_SOS + 5, st, S_BAND + 2,
+                               biquad_init_steady(cfg, C_BAND_SOS, st, S_BAND, e))
+        y = biquad_step(cfg, C_BAND_SOS + 5, st, S_BAND + 2, biquad_step(cfg, C_BAND_SOS, st, S_BAND, e))
+        fb += g_fb * cfg[C_BAND_GAIN] * y
 
     # ---- torque loop
     d_hat = 0.0
