@@ -186,7 +186,8 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     assert hl[0][0] == 0.0 and a[0][0] == 0.0          # the IMU hold's cycle, not there with the IMU every cycle
     want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
     assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
-    on = {"deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link"}
+    on = {"deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
+          "band_gain": 0.0}     # the loop this was tuned on, before the band gain
     with pytest.raises(ConfigError, match="phase margin"):
         check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.3}}))
     rep = check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.2}}))

@@ -2,7 +2,7 @@
 motor``) with the deflection-rate damping: the loop model's paths against the compiled step, the
 stick mode against physics (J_c acts as a smaller motor inertia), the start-up check on sets of this
 structure (including the fade, which now moves J_c with kp and b), the compiled step in closed loop at
-the grid points that limit the shipped set, and what the fade must do at rest and at onset."""
+the grid points that limit the set, and what the fade must do at rest and at onset."""
 
 from __future__ import annotations
 
@@ -22,12 +22,13 @@ from capstan.models.common.errors import ConfigError
 from test_deflection_damping import _linear, _mode, _pulse_run
 from test_torque_loop import OLD_LOOP, _run_step_physical
 
-#: the shipped feedback of config/controller.yaml (hil.yaml, rig.yaml), with the fade
-SHIPPED = {"kp": 0.75, "deflection_damping_Nms_rad": 80.0, "inertia_comp_kg_m2": 0.45, "acceleration_source": "motor",
+#: the largest inertia compensation inside the margins (the --terms variant ``inertia_comp_motor``), with the
+#: fade, without the band gain
+MOTOR_SET = {"kp": 0.75, "deflection_damping_Nms_rad": 80.0, "inertia_comp_kg_m2": 0.45, "acceleration_source": "motor",
            "acceleration_cutoff_hz": 5.0, "deflection_link_cutoff_hz": 80.0, "deflection_link_lag_compensation": False,
-           "deflection_reference_cutoff_hz": 2.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.15}
+           "deflection_reference_cutoff_hz": 2.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.15, "band_gain": 0.0}
 #: ... as the linear loop the analysis has at full gains (no fade, no integral trim)
-SHIPPED_LINEAR = {**SHIPPED, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0}
+MOTOR_LINEAR = {**MOTOR_SET, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0}
 #: the grid points that limit it: slip at J_m +30 % (phase margin), slip at K 200 / J_m -30 % (gain
 #: margin), sheath stick at J_m -30 % (the damping's own crossover with the delay)
 LIMITING = [PlantPoint(300.0, 0.949, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
@@ -41,7 +42,7 @@ def test_the_analysis_paths_are_the_steps():
     ``b (H_l + lead A_l)`` with the lead on the link's own acceleration filter even though J_c takes
     the motor's: the paths the loop model adds up."""
     jc, b = 0.4, 100.0
-    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "inertia_comp_kg_m2": jc, "deflection_damping_Nms_rad": b,
+    cfg = _linear({**MOTOR_LINEAR, "kp": 0.0, "inertia_comp_kg_m2": jc, "deflection_damping_Nms_rad": b,
                    "acceleration_cutoff_hz": 7.0, "deflection_link_cutoff_hz": 40.0,
                    "deflection_link_lag_compensation": True})
     x = np.zeros(400)
@@ -84,35 +85,35 @@ def test_without_the_damping_the_same_compensation_is_unstable_with_the_delay():
     the motor's acceleration and no damping leave an unstable stick mode (the analysis and the compiled
     step agree that it grows); with b 80 the same loop decays."""
     p = PlantPoint(200.0, 0.511, 0.5)
-    cfg0 = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_damping_Nms_rad": 0.0})
+    cfg0 = _linear({**MOTOR_LINEAR, "kp": 0.0, "deflection_damping_Nms_rad": 0.0})
     rho = float(np.max(np.abs(closed_loop_poles(cfg0, p, 2))))
     assert rho > 1.0
     v = _run_step_physical(cfg0, p, 2, 3000)
     assert np.max(np.abs(v[-500:])) > 2.0 * np.max(np.abs(v[:500]))
-    cfgb = _linear({**SHIPPED_LINEAR, "kp": 0.0})
+    cfgb = _linear({**MOTOR_LINEAR, "kp": 0.0})
     assert float(np.max(np.abs(closed_loop_poles(cfgb, p, 2)))) < 1.0
     v = _run_step_physical(cfgb, p, 2, 3000)
     assert np.max(np.abs(v[-500:])) < 0.05 * np.max(np.abs(v[:500]))
 
 
 @pytest.mark.parametrize("p", LIMITING, ids=["slip-J+30", "slip-K200-J-30", "sheath-stick-J-30"])
-def test_shipped_set_decays_at_its_limiting_points_in_the_compiled_step(p):
-    """The shipped set (kp 0.75, b 80, J_c 0.45 from the motor, link rate at 80 Hz) at the grid points
+def test_the_set_decays_at_its_limiting_points_in_the_compiled_step(p):
+    """The set (kp 0.75, b 80, J_c 0.45 from the motor, link rate at 80 Hz) at the grid points
     that limit its margins: stable by the analysis, and the compiled step closed on the physical plant
     (IMU at 400 Hz, 2-cycle FIFO) decays."""
-    cfg = _linear(SHIPPED_LINEAR)
+    cfg = _linear(MOTOR_LINEAR)
     assert float(np.max(np.abs(closed_loop_poles(cfg, p, 2)))) < 1.0
     v = _run_step_physical(cfg, p, 2, 8000)
     assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
 
 
 def test_start_up_check_on_sets_of_this_structure():
-    """The shipped set meets PM >= 45 deg / GM >= 6 dB over the grid, with J_c faded with kp and b
+    """The set meets PM >= 45 deg / GM >= 6 dB over the grid, with J_c faded with kp and b
     (x0.5, x0). Refused: the same J_c with the link rate at 150 Hz and kp 1.0 (phase margin in slip);
     J_c 0.45 with b 40 (sheath stick); and the fade is what makes it acceptable at rest: J_c not faded
     (rest_gate_cutoff_hz 0 leaves it on while kp and b are on, so analysed directly) but with kp and
     b 0 is unstable."""
-    cfg = ControllerConfig.from_mapping({"feedback": SHIPPED})
+    cfg = ControllerConfig.from_mapping({"feedback": MOTOR_SET})
     assert inertia_comp_faded(cfg.feedback)
     rep = check_margins(cfg)
     assert rep.ok and rep.worst_phase_margin_deg >= 50.0 and rep.worst_gain_margin_dB >= 8.0
@@ -120,8 +121,8 @@ def test_start_up_check_on_sets_of_this_structure():
     for bad, what in (({"kp": 1.0, "deflection_link_cutoff_hz": 150.0}, "phase margin"),
                       ({"deflection_damping_Nms_rad": 40.0}, "torque loop is not robust")):
         with pytest.raises(ConfigError, match=what):
-            check_margins(ControllerConfig.from_mapping({"feedback": {**SHIPPED, **bad}}))
-    at_rest_unfaded = {**SHIPPED, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}
+            check_margins(ControllerConfig.from_mapping({"feedback": {**MOTOR_SET, **bad}}))
+    at_rest_unfaded = {**MOTOR_SET, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}
     assert not inertia_comp_faded(ControllerConfig.from_mapping({"feedback": at_rest_unfaded}).feedback)
     assert not analyse(ControllerConfig.from_mapping({"feedback": at_rest_unfaded})).all_stable
     with pytest.raises(ConfigError, match="UNSTABLE"):
@@ -133,7 +134,7 @@ def test_faded_at_rest_and_in_at_onset_without_a_step():
     the motor's J_c adds nothing: the command is bit-identical to J_c 0. Once the joint moves, J_c x
     the motor's acceleration reaches the command, faded in by the 5 Hz gate (no step of J_c x a)."""
     def run(jc: float, dq_m, dq_out, n: int = 2000) -> np.ndarray:
-        m = {"feedback": {**SHIPPED, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0},
+        m = {"feedback": {**MOTOR_SET, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0},
              "gravity": {"enabled": False}, "feedforward": {"enabled": False}}
         ctl = Controller(ControllerConfig.from_mapping(m))
         r = ctl.record[0]

@@ -69,8 +69,8 @@ class FeedbackGains:
     #: BP a 4th-order Butterworth band-pass ``band_low_hz``-``band_high_hz`` [Hz] (the strokes' band).
     #: Loop gain where the hand moves, not at the sheath-stick mode (13-30 Hz, where kp is capped) nor at
     #: the free link's slow mode in slip (0.2 Hz, where an integral's lag undamps it); faded with kp
-    band_gain: float = 0.0
-    band_low_hz: float = 0.5
+    band_gain: float = 2.5
+    band_low_hz: float = 0.3
     band_high_hz: float = 2.0
 
 

@@ -122,7 +122,7 @@ BASELINE: dict[str, str] = {**{k: "pid_gravity_only" for k in PAPER_CONTROLLERS}
 #: the gains the paper-style controllers were tuned with in lock-step (no delay); with the
 #: daemon's 2-cycle I/O delay they miss the margins (`capstan experiment loop`)
 LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
-                                  "inertia_comp_kg_m2": 0.0, "deflection_damping_Nms_rad": 0.0,
+                                  "inertia_comp_kg_m2": 0.0, "deflection_damping_Nms_rad": 0.0, "band_gain": 0.0,
                                   "rest_gate_cutoff_hz": 0.0}
 
 

@@ -10,8 +10,9 @@ not a loop the daemon would start, whatever its mean |tau_h|.
 
 Variants (:data:`TERM_VARIANTS`):
 
-* ``shipped`` — feedforward + kp with the deflection-rate damping (faded in with motion) +
-  integral trim + inertia compensation, 2-cycle delay, IMU 400 Hz;
+* ``shipped`` — feedforward + kp and the band gain with the deflection-rate damping (faded in with
+  motion) + integral trim + inertia compensation, 2-cycle delay, IMU 400 Hz;
+* ``no_band_gain`` — the band gain on the error off (the loop before it);
 * ``no_deflection_damping`` (kp kept) / ``no_torque_feedback`` (kp 0, no damping, J_c 0.3: the
   loop before the damping) / ``kp_always_on`` (no fade at rest);
 * ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
@@ -64,7 +65,8 @@ class TermVariant:
 
 _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
 #: the loop before the deflection-rate damping: no torque feedback (kp 0), no damping, J_c 0.3
-_PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3}
+_PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3,
+         "band_gain": 0.0}
 
 #: the inertia compensation from the motor's acceleration (faded in with kp and the damping): J_c 0.45
 #: with b 80 and the link rate at 80 Hz, no lead (the lead is link-acceleration feedback that shares J_c's
@@ -73,8 +75,9 @@ MOTOR_INERTIA_COMP = {"inertia_comp_kg_m2": 0.45, "acceleration_source": "motor"
                       "deflection_link_cutoff_hz": 80.0, "deflection_link_lag_compensation": False}
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
-    TermVariant("shipped", "feedforward + kp 0.75 + deflection damping (lag-compensated link rate)"
-                           " + integral trim + inertia compensation"),
+    TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
+                           " (lag-compensated link rate) + integral trim + inertia compensation"),
+    TermVariant("no_band_gain", "band gain off (the loop before it)", extra={"feedback": {"band_gain": 0.0}}),
     TermVariant("no_deflection_damping", "deflection-rate damping off, kp kept",
                 extra={"feedback": {"deflection_damping_Nms_rad": 0.0}}),
     TermVariant("no_torque_feedback", "kp 0 and no deflection damping (the loop before)", extra={"feedback": _PREV}),
