@@ -117,7 +117,7 @@ def fast_delayed():
     cond = CONDITIONS["fast_low_bending"]
     no_jc = {"feedback": {"inertia_comp_kg_m2": 0.0}}
     prev = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0,      # the loop before
-            "inertia_comp_kg_m2": 0.3}
+            "inertia_comp_kg_m2": 0.3, "band_gain": 0.0}
     runs = {"shipped_ff": (True, None), "shipped_gravity_only": (False, no_jc),
             "prev_ff": (True, {"feedback": prev}), "prev_gravity_only": (False, {"feedback": {**prev, **no_jc["feedback"]}}),
             "prev_ff_only": (True, {"feedback": {**prev, **no_jc["feedback"]}}), "prev_jc_only": (False, {"feedback": prev})}
