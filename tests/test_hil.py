@@ -163,6 +163,11 @@ def test_sigkill_leaves_a_readable_log_and_the_drive_stops_itself(hil_config: Pa
     lines = wait_for_stderr(proc, "heartbeat of node 127 lost", timeout_s=10.0)
     t_stop = time.monotonic()
     assert t_stop - t_kill < 1.0, "".join(lines[-10:])
+    # the orphaned rig stops after its grace time and removes the bus directory its dead
+    # parent made (no temporary directory left per killed run)
+    line = wait_for_stderr(proc, "removed the bus directory", timeout_s=10.0)[-1]
+    channel = Path(line.split("removed the bus directory ")[1].split(" its parent")[0])
+    assert channel.name.startswith("capstan-can-") and not channel.exists()
     proc.wait(timeout=10)
     logs = sorted((hil_config.parent / "logs").glob("capstan_*.mcap"))
     assert len(logs) == 1

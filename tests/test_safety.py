@@ -55,11 +55,15 @@ def _healthy(ctl, n=30):
     return tau, n
 
 
-def test_healthy_run_commands_gravity_torque():
+def test_healthy_run_tracks_the_gravity_reference_without_a_fault():
+    # tau_in already equals the gravity reference with the motor at zero torque: the LDO
+    # reads that as a disturbance holding the link (d_hat = -tau_g) and commands nothing
     ctl = _ctl()
     tau, _ = _healthy(ctl, 200)
-    assert tau != 0.0
-    assert ctl.record[0]["tau_g_Nm"] == pytest.approx(3.78 * math.sin(0.5))
+    r = ctl.record[0]
+    assert r["tau_g_Nm"] == pytest.approx(3.78 * math.sin(0.5))
+    assert r["tau_in_des_Nm"] == pytest.approx(TAU_G) and r["d_hat_Nm"] == pytest.approx(-TAU_G)
+    assert abs(tau) < 1e-9 and r["tau_m_cmd_Nm"] == tau and r["fault_bits"] == 0
 
 
 @pytest.mark.parametrize("field", ["T_up_in_N", "q_out_rad", "dq_out_rad_s", "tau_m_meas_Nm", "t_s"])
@@ -83,9 +87,9 @@ def test_nan_input_zeroes_command_in_the_same_step_and_latches(field):
 def test_stale_imu_beyond_10_ms_zeroes_command():
     ctl = _ctl()
     _, k = _healthy(ctl)
-    _write(ctl, k, tau_in=TAU_G, imu_age_s=0.009)
-    assert ctl.step() != 0.0 and not ctl.faulted
-    _write(ctl, k + 1, tau_in=TAU_G, imu_age_s=0.0105)
+    _write(ctl, k, tau_in=TAU_G - 0.5, imu_age_s=0.009)     # a tracking error: a command to zero
+    assert abs(ctl.step()) > 0.1 and not ctl.faulted
+    _write(ctl, k + 1, tau_in=TAU_G - 0.5, imu_age_s=0.0105)
     assert ctl.step() == 0.0
     assert ctl.fault_bits == FaultBits.STALE_IMU
     assert fault_names(ctl.fault_bits) == "STALE_IMU"
@@ -184,6 +188,8 @@ def test_replay_is_bit_identical():
     ({"feedforward": {"zeta_s": 0.5}}, "controller.feedforward.zeta_s"),
     ({"safety": {"tau_fault_Nm": 5.0}}, "controller.safety.tau_fault_Nm"),
     ({"safety": {"imu_timeout_s": "fast"}}, "controller.safety.imu_timeout_s"),
+    ({"safety": {"command_quantum_Nm": 1e-5}}, "controller.safety.command_quantum_Nm"),   # not a power of two
+    ({"safety": {"command_quantum_Nm": 0.01}}, "controller.safety.command_quantum_Nm"),   # coarser than 2**-10
     ({"feedforward": {"routing": {"length_m": 1.0}}}, "controller.feedforward.routing.theta_rad"),
 ])
 def test_bad_config_names_the_key(mapping, key):
@@ -206,3 +212,28 @@ def test_example_config_file_is_valid_and_matches_the_defaults():
     path = Path(__file__).resolve().parents[1] / "config" / "controller.yaml"
     cfg = ControllerConfig.from_mapping(load_yaml(path)["controller"])
     assert cfg == ControllerConfig.from_mapping({})
+
+
+def test_command_is_on_its_power_of_two_grid_within_both_limits():
+    """The command is a multiple of COMMAND_QUANTUM_NM, at most half a quantum from the
+    clamped and rate-limited demand, and never beyond either limit, also for limits that
+    are not multiples of the quantum (the nearest multiple is then stepped back inside)."""
+    from capstan.controller.law.safety import COMMAND_QUANTUM_NM, limit_command_Nm
+    q = COMMAND_QUANTUM_NM
+    assert math.frexp(q)[0] == 0.5 and q <= 1e-3 / 50      # far below the drive's 1 per mille of 20 Nm
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        tau_max = float(rng.choice([15.0, 12.3456789, 0.1 + rng.uniform()]))
+        step = float(rng.choice([2.0, 0.0123456, rng.uniform(1e-3, 1.0)]))
+        prev = float(np.round(rng.uniform(-tau_max, tau_max) / q) * q)
+        raw = float(rng.uniform(-2.0 * tau_max, 2.0 * tau_max))
+        cmd = limit_command_Nm(raw, prev, tau_max, step)
+        want = min(max(min(max(raw, -tau_max), tau_max), prev - step), prev + step)
+        assert cmd / q == round(cmd / q)                            # on the grid, exactly
+        assert abs(cmd - want) <= q                                 # moved by less than a quantum
+        assert abs(cmd) <= tau_max and abs(cmd - prev) <= step      # inside both limits
+        if -tau_max + q < want < tau_max - q and abs(want - prev) < step - q:
+            assert abs(cmd - want) <= q / 2                         # away from limits: nearest
+    # the grid is the same in any order of operations: a multiple stays itself
+    assert limit_command_Nm(3 * q, 0.0, 15.0, 2.0) == 3 * q
+    assert limit_command_Nm(-0.5 * q * 1.0001, 0.0, 15.0, 2.0) == -q

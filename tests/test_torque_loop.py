@@ -26,7 +26,8 @@ LOCKSTEP_LDO = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "der
                 "ldo": {"q_cutoff_hz": 10.0}}
 #: the shipped feedback before the deflection-rate damping: feedforward + integral trim + J_c, kp 0
 OLD_LOOP = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0}
-NO_LIMITS = {"tau_max_Nm": 1e6, "tau_fault_Nm": 1e7, "dtau_max_Nm_s": 1e9, "dtau_fault_Nm_s": 1e10}
+NO_LIMITS = {"tau_max_Nm": 1e6, "tau_fault_Nm": 1e7, "dtau_max_Nm_s": 1e9, "dtau_fault_Nm_s": 1e10,
+             "command_quantum_Nm": 0.0}   # the safety stage linear: no clamps, no rounding
 
 
 def _quiet(m: dict) -> dict:

@@ -67,6 +67,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
       safety:
         tau_max_Nm: 15.0             # command clamp (saturation, not a fault)
         dtau_max_Nm_s: 2000.0        # command rate clamp
+        command_quantum_Nm: 1.52587890625e-05   # the command's resolution, 2**-16 Nm (a power of
+                                     # two <= 2**-10, or 0 = as computed); the drive's is 1 per mille
         tau_fault_Nm: 60.0           # raw demand beyond this latches TORQUE_LIMIT (keep above
                                      # (1 + kp) * 2 * tau_fc: the feedforward flips sign at reversals)
         dtau_fault_Nm_s: 60000.0     # raw demand step beyond this x dt latches TORQUE_RATE_LIMIT
@@ -93,13 +95,13 @@ All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structu
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from enum import IntEnum
 from typing import Any, Mapping
 
 from capstan.controller.law.feedback_config import AccelerationSource, FeedbackGains, feedback_from_mapping
 from capstan.controller.law.learned_effects import check_entries
+from capstan.controller.law.safety_config import SafetyConfig, safety_from_mapping
 from capstan.controller.law.stability_settings import StabilitySettings, stability_from_mapping
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown, section
 from capstan.models.common.errors import ConfigError
@@ -176,19 +178,6 @@ class FeedforwardConfig:
 
 
 @dataclass(frozen=True)
-class SafetyConfig:
-    """Limits and timeouts of the safety stage."""
-
-    tau_max_Nm: float = 15.0
-    dtau_max_Nm_s: float = 2000.0
-    tau_fault_Nm: float = 60.0
-    dtau_fault_Nm_s: float = 60000.0
-    imu_timeout_s: float = 0.010
-    loadcell_timeout_s: float = 0.005
-    motor_timeout_s: float = 0.005
-
-
-@dataclass(frozen=True)
 class ControllerConfig:
     """Frozen controller configuration; build with :meth:`from_mapping`."""
 
@@ -255,7 +244,7 @@ class ControllerConfig:
         mgl = get_float(c, "m_g_l_Nm", p, d.m_g_l_Nm, min_value=0.0)
 
         ff = _feedforward_from_mapping(section(cfg, "feedforward", prefix, required=False), f"{prefix}.feedforward")
-        safety = _safety_from_mapping(section(cfg, "safety", prefix, required=False), f"{prefix}.safety")
+        safety = safety_from_mapping(section(cfg, "safety", prefix, required=False), f"{prefix}.safety")
         stab = stability_from_mapping(section(cfg, "stability", prefix, required=False), f"{prefix}.stability")
         if ff.enabled and ff.dead_band_rad_s < 2.0 * stab.gyro_noise_rad_s:
             raise ConfigError(f"{prefix}.feedforward.dead_band_rad_s",
@@ -366,37 +355,3 @@ def _feedforward_from_mapping(c: Mapping[str, Any], p: str) -> FeedforwardConfig
         max_rate_Nm_s=get_float(c, "max_rate_Nm_s", p, d.max_rate_Nm_s, min_value=0.0, min_exclusive=True),
         effects=effects, effects_shape=shape,
     )
-
-
-def _safety_from_mapping(c: Mapping[str, Any], p: str) -> SafetyConfig:
-    """Parse ``controller.safety``.
-
-    :raises ConfigError: naming the key (also when a fault limit is below its clamp).
-    """
-    reject_unknown(c, {"tau_max_Nm", "dtau_max_Nm_s", "tau_fault_Nm", "dtau_fault_Nm_s", "imu_timeout_s",
-                       "loadcell_timeout_s", "motor_timeout_s"}, p)
-    d = SafetyConfig()
-    if "tau_max_Nm" in c and "tau_fault_Nm" not in c:
-        # the user set the clamp only: a clamp above the default fault limit is the clamp's error
-        tmax = get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True)
-        if tmax > d.tau_fault_Nm:
-            raise ConfigError(f"{p}.tau_max_Nm", f"must be <= tau_fault_Nm = {d.tau_fault_Nm} "
-                                                f"(the hard fault limit above the clamp), got {tmax}")
-    s = SafetyConfig(
-        get_float(c, "tau_max_Nm", p, d.tau_max_Nm, min_value=0.0, min_exclusive=True),
-        get_float(c, "dtau_max_Nm_s", p, d.dtau_max_Nm_s, min_value=0.0, min_exclusive=True),
-        get_float(c, "tau_fault_Nm", p, d.tau_fault_Nm, min_value=0.0, min_exclusive=True),
-        get_float(c, "dtau_fault_Nm_s", p, d.dtau_fault_Nm_s, min_value=0.0, min_exclusive=True),
-        get_float(c, "imu_timeout_s", p, d.imu_timeout_s, min_value=0.0, min_exclusive=True),
-        get_float(c, "loadcell_timeout_s", p, d.loadcell_timeout_s, min_value=0.0, min_exclusive=True),
-        get_float(c, "motor_timeout_s", p, d.motor_timeout_s, min_value=0.0, min_exclusive=True),
-    )
-    if s.tau_fault_Nm < s.tau_max_Nm:
-        raise ConfigError(f"{p}.tau_fault_Nm", f"must be >= tau_max_Nm = {s.tau_max_Nm}, got {s.tau_fault_Nm}")
-    if s.dtau_fault_Nm_s < s.dtau_max_Nm_s:
-        raise ConfigError(f"{p}.dtau_fault_Nm_s",
-                          f"must be >= dtau_max_Nm_s = {s.dtau_max_Nm_s}, got {s.dtau_fault_Nm_s}")
-    if not math.isfinite(s.tau_max_Nm):
-        raise ConfigError(f"{p}.tau_max_Nm", "must be finite")
-    return s
-

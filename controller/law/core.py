@@ -84,6 +84,7 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     sf = cfg.safety
     c[_s.C_TAU_MAX] = sf.tau_max_Nm
     c[_s.C_DTAU_MAX_STEP] = sf.dtau_max_Nm_s * dt
+    c[_s.C_CMD_QUANTUM] = sf.command_quantum_Nm
     c[_s.C_TAU_FAULT] = sf.tau_fault_Nm
     c[_s.C_DTAU_FAULT_STEP] = sf.dtau_fault_Nm_s * dt
     c[_s.C_IMU_TIMEOUT] = sf.imu_timeout_s

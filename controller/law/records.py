@@ -136,9 +136,11 @@ LOOP_GATING_FIELDS: tuple[str, ...] = ("phase", "cmd_scale")
 #: * the step's intermediates and state (``tau_in_Nm`` ... ``tau_m_raw_Nm``): a replay
 #:   recomputes them bit for bit from the logged inputs and config, so the log keeps a
 #:   copy for plotting (rounded to :data:`LOG_FLOAT32_QUANTA`) and loses no information;
-#: * ``period_s`` and ``compute_s``: differences of integer nanosecond clock readings;
-#:   from their float32 the nanoseconds are recovered exactly up to 15.6 ms (1 ns off
-#:   up to 31 ms), i.e. float32 keeps what the clock gave.
+#: * ``period_s`` and ``compute_s``: the loop's own timing (differences of integer
+#:   nanosecond clock readings), not read by the step or the replay; stored rounded to
+#:   :data:`LOG_FLOAT32_QUANTA` (2**-20 s = 0.95 us): the nanoseconds below it are the
+#:   clock read's own cost and scheduling noise (the loop is judged on microsecond
+#:   jitter), and cost 3.2 B per cycle of a 69 B cycle.
 #:
 #: Together they save about 27 bytes per cycle after compression, 148 -> 121 B
 #: (``tools/bench/logs.py`` with and without ``--all-float64``); ``tau_m_cmd_Nm``
@@ -150,17 +152,20 @@ LOG_FLOAT32_FIELDS: tuple[str, ...] = (
 
 #: quantum (a power of two, in the field's unit) each step intermediate is rounded to in
 #: the live log before its float32 cast, so its low mantissa bits are zero and it
-#: compresses: display copies only, a replay recomputes them bit for bit (and ``capstan
-#: archive`` checks the recomputed values against these stored ones). Torques:
+#: compresses. The step's intermediates are display copies: a replay recomputes them bit
+#: for bit (and ``capstan archive`` checks the recomputed values against these stored
+#: ones); the loop's timing fields are stored as rounded (0.95 us). Torques:
 #: 2**-12 Nm = 0.24 mNm, 1/80 of the drive's torque step (1 per mille of a 20 Nm rated
 #: torque) and about 1/70 of the torque noise of the tension measurement (0.3 N on
 #: 40 mm pulleys, both cables); the pretension ``T0_meas_N``: 2**-8 N = 3.9 mN, 1/77 of
 #: the load-cell noise. The rounding adds at most half a quantum (rms quantum/sqrt(12)).
-#: Measured values, the command and the timing fields are never quantized.
+#: Measured values and the command are never rounded by the log (the command is on the
+#: law's own grid, ``controller.safety.command_quantum_Nm``, and stored as float64).
 LOG_FLOAT32_QUANTA: dict[str, float] = {
     **{f: 2.0 ** -12 for f in ("tau_in_Nm", "tau_g_Nm", "tau_fc_Nm", "tau_in_des_Nm", "err_Nm", "pd_Nm",
                                 "d_hat_Nm", "tau_m_raw_Nm")},
     "T0_meas_N": 2.0 ** -8,
+    "period_s": 2.0 ** -20, "compute_s": 2.0 ** -20,
 }
 
 #: SI measurement field -> the wire field the driver computes it from (with the

@@ -11,7 +11,18 @@ Order of checks in one cycle:
 3. latch: any bit is ORed into the latched fault word; while it is non-zero the command
    is exactly 0.0 from this very cycle on, until :func:`capstan.controller.law.core.Controller.reset`;
 4. otherwise the command is clamped to ``+-tau_max_Nm`` and rate limited to
-   ``dtau_max_Nm_s * dt_s`` per cycle (saturation, not a fault).
+   ``dtau_max_Nm_s * dt_s`` per cycle (saturation, not a fault), then rounded to a
+   multiple of ``safety.command_quantum_Nm`` (default :data:`COMMAND_QUANTUM_NM`,
+   2**-16 Nm = 15 uNm) inside those limits.
+
+Why the command is quantised: the drive takes its target torque (0x6071) in per mille of
+the rated torque, 20 mNm on a 20 Nm motor, 1300 quanta; below that the float64 command
+only carried rounding noise of the filters, which is what the live log spent 8 bytes per
+cycle on (the command is stored exactly, as float64, because replay compares it bit for
+bit). A power of two leaves the low mantissa bits zero, so the stored command
+compresses, and division and multiplication by it are exact, so the rounding is the
+same in the daemon and in a replay. The observer's ``tau_m[k-1]`` is the rounded
+command, as the drive gets it.
 
 The fault limits (2) sit above the clamps (4): saturating is normal operation, a demand
 beyond the hard limits means the control law or its inputs went wrong.
@@ -33,6 +44,10 @@ _TORQUE_RATE_LIMIT = int(FaultBits.TORQUE_RATE_LIMIT)
 _STALE_IMU = int(FaultBits.STALE_IMU)
 _STALE_LOADCELL = int(FaultBits.STALE_LOADCELL)
 _STALE_MOTOR = int(FaultBits.STALE_MOTOR)
+
+#: the command's resolution [Nm]: 2**-16 Nm, 1/1300 of the drive's torque step (1 per mille
+#: of a 20 Nm rated torque); a power of two (see the module docstring)
+COMMAND_QUANTUM_NM = 2.0 ** -16
 
 
 @njit(cache=True)
@@ -74,9 +89,26 @@ def output_fault_bits(tau_raw_Nm: float, tau_raw_prev_Nm: float, tau_fault_Nm: f
 
 @njit(cache=True)
 def limit_command_Nm(tau_raw_Nm: float, tau_prev_cmd_Nm: float, tau_max_Nm: float,
-                     dtau_max_step_Nm: float) -> float:
-    """Clamp to ``+-tau_max_Nm``, then limit the change from the previous command [Nm]."""
+                     dtau_max_step_Nm: float, quantum_Nm: float = COMMAND_QUANTUM_NM) -> float:
+    """Clamp to ``+-tau_max_Nm``, limit the change from the previous command, then round
+    to the nearest multiple of ``quantum_Nm`` (a power of two; 0: no rounding) that keeps
+    both limits [Nm].
+
+    The rounding moves the command by at most half a quantum (7.6 uNm), or by less than
+    one quantum where the nearest multiple would cross a limit that is not itself a
+    multiple (limits narrower than a quantum are not supported: the command then keeps
+    the nearest multiple).
+    """
     tau = min(max(tau_raw_Nm, -tau_max_Nm), tau_max_Nm)
-    lo = tau_prev_cmd_Nm - dtau_max_step_Nm
-    hi = tau_prev_cmd_Nm + dtau_max_step_Nm
-    return min(max(tau, lo), hi)
+    tau = min(max(tau, tau_prev_cmd_Nm - dtau_max_step_Nm), tau_prev_cmd_Nm + dtau_max_step_Nm)
+    lo = max(tau_prev_cmd_Nm - dtau_max_step_Nm, -tau_max_Nm)      # both limits, for the rounding
+    hi = min(tau_prev_cmd_Nm + dtau_max_step_Nm, tau_max_Nm)
+    q = quantum_Nm
+    if q <= 0.0:
+        return tau
+    g = math.floor(tau / q + 0.5) * q
+    if g > hi and g - q >= lo:
+        g -= q
+    elif g < lo and g + q <= hi:
+        g += q
+    return g

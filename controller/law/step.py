@@ -138,9 +138,10 @@ C_DEFL_K_INV = 49       # 1 / plant.stiffness_Nm_rad [rad/Nm]: the deflection ra
 C_FBG_ON = 50           # 1.0 = kp and the deflection damping act only in motion (feedback.rest_gate_cutoff_hz > 0)
 C_FBG_ALPHA = 51        # pole of the low-pass that fades them in and out
 C_DEFL_LEAD = 52        # lead on the link's velocity in the damping [s] (0 = off): + lead x the link acceleration
-C_BAND_GAIN = 53        # extra gain on the error in a band [Nm/Nm] (feedback.band_gain; 0 = off)
-C_BAND_SOS = 54         # 2 x 5 coefficients of its band-pass (two biquads, ldo.band_pass_sos)
-N_CFG = 64              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_CMD_QUANTUM = 53      # the command's resolution [Nm] (safety.command_quantum_Nm; 0 = float64 as computed)
+C_BAND_GAIN = 54        # extra gain on the error in a band [Nm/Nm] (feedback.band_gain; 0 = off)
+C_BAND_SOS = 55         # 2 x 5 coefficients of its band-pass (two biquads, ldo.band_pass_sos)
+N_CFG = 65              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -329,7 +330,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     if latched != 0:
         cmd = 0.0
     else:
-        cmd = limit_command_Nm(tau_raw, st[S_CMD_PREV], cfg[C_TAU_MAX], cfg[C_DTAU_MAX_STEP])
+        cmd = limit_command_Nm(tau_raw, st[S_CMD_PREV], cfg[C_TAU_MAX], cfg[C_DTAU_MAX_STEP], cfg[C_CMD_QUANTUM])
     st[S_CMD_PREV] = cmd
 
     # ---- record

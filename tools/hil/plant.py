@@ -31,6 +31,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -150,6 +151,8 @@ class HilPlant:
                                         boot_baudrate=self.settings.imu_boot_baudrate)
         self.cells = SimLoadCellAmp.from_config(self.lc_pty.master_fd, {**lc_cfg, "port": self.lc_pty.slave_path})
         self.channel = channel
+        #: True once :meth:`run` stopped because its parent was gone
+        self.orphaned = False
         self.bus = can.Bus(interface="capstan_unix", channel=channel)
         self.drive = SimDrive(self.bus, mcfg.node_id, mcfg.eds, self.settings.rated_torque_Nm,
                               mcfg.encoder_counts_per_rev, mcfg.velocity_units_per_rev_s)
@@ -235,6 +238,7 @@ class HilPlant:
                     log.warning("parent %d is gone; stopping the simulated rig in %.1f s",
                                 parent_pid, ORPHAN_GRACE_S)
                 elif time.monotonic() - orphan_since_s >= ORPHAN_GRACE_S:
+                    self.orphaned = True
                     break
         n = min(self.steps, len(self.step_us))
         st = self.step_us[:n]
@@ -291,6 +295,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         stats, code = {"error": str(exc), "steps": plant.steps}, EXIT_PLANT_ERROR
     finally:
         plant.close()
+    if plant.orphaned:
+        # the parent made the bus directory and would have removed it: nobody else will
+        shutil.rmtree(args.channel, ignore_errors=True)
+        log.info("removed the bus directory %s its parent left behind", args.channel)
     try:
         print(json.dumps(stats), flush=True)
     except BrokenPipeError:                     # the parent is gone and its pipe with it
