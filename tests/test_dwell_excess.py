@@ -59,3 +59,14 @@ def test_the_excess_over_several_rests_is_one_per_rest() -> None:
     rests = np.array([0.3, 1.5, 0.7, 3.0])
     out = dwell_breakaway_excess_Nm(1.0, 1.0, rests, 1.0, 1.0, 0.0)
     assert out.shape == rests.shape and np.all(np.diff(out[np.argsort(rests)]) > 0.0)
+
+
+def test_the_e2e_report_states_the_excess_at_an_onset() -> None:
+    from capstan.tools.experiments.e2e_closure import _parameters
+
+    s = {"injected": [{"effect": "dwell_stiction", "amp": 1.0, "tau_age_s": 1.0, "slide_rad": 0.05}],
+         "learned": [{"effect": "dwell_stiction", "params": {"amp_Nm": 1.5, "tau_age_s": 1.0, "s0_rad": 0.04}}],
+         "learned_shape": {"alpha_s_rad": 1.0, "eta_s_rad_s": 5.0, "zeta_s": 1.2, "v_rest_rad_s": 0.017},
+         "runs": {"C": {"breakaway": {"median_sliding_Nm": 1.85}}}}
+    onset = 1.5 * (1.0 + 0.2 * math.exp(-(0.05 / 5.0) ** 2))
+    assert f"at an onset after a long rest {onset:.2f} Nm" in _parameters(s)[0]
