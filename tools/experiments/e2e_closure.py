@@ -51,7 +51,8 @@ import yaml
 
 from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import CapstanError
-from capstan.tools.experiments.breakaway import breakaways
+from capstan.models.closure.effects_runtime import dwell_breakaway_excess_Nm
+from capstan.tools.experiments.breakaway import MOVING_RAD_S, breakaways
 from capstan.tools.offline.run_inputs import load_run
 from capstan.tools.offline.shipped import config_path
 
@@ -294,9 +295,14 @@ def _parameters(s: Mapping[str, Any]) -> list[str]:
     if not inj or not got:
         return []
     i, g = inj[0], got[0]["params"]
+    sh = s.get("learned_shape") or {}
+    # amp scales the capacity with its Stribeck peak: the excess at an onset (long rest)
+    onset = float(dwell_breakaway_excess_Nm(g["amp_Nm"], g["tau_age_s"], math.inf, sh.get("zeta_s", 1.0),
+                                            sh.get("eta_s_rad_s", 1.0), MOVING_RAD_S))
     return [f"Dwell stiction, injected -> learned: amplitude {i['amp']:g} x sliding friction {slide:.2f} Nm "
-            f"(run C) = {i['amp'] * slide:.2f} Nm -> amp_Nm {g['amp_Nm']:.2f} Nm; ageing time constant "
-            f"{i['tau_age_s']:g} s -> {g['tau_age_s']:g} s; slide to lose it {i['slide_rad']:g} rad -> "
+            f"(run C) = {i['amp'] * slide:.2f} Nm -> amp_Nm {g['amp_Nm']:.2f} Nm, at an onset after a long rest "
+            f"{onset:.2f} Nm (x the refitted Stribeck factor, zeta_s {sh.get('zeta_s', 1.0):.3g}); ageing time "
+            f"constant {i['tau_age_s']:g} s -> {g['tau_age_s']:g} s; slide to lose it {i['slide_rad']:g} rad -> "
             f"s0 {g['s0_rad']:g} rad (the closure picks these two from a grid).", ""]
 
 
