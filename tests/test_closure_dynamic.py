@@ -145,3 +145,26 @@ def test_davinci_held_out_skill_on_tau_in_with_plausible_parameters() -> None:
     assert fit.params["tau_fc_Nm"] > 0.0 and fit.params["g_out"] > 0.0
     if "zeta_s" in fit.at_bound:
         assert "eta_s_rad_s" in fit.undetermined
+
+
+def test_a_range_violation_within_its_uncertainty_is_reported_as_weak_not_implausible() -> None:
+    """A value outside its plausible range is implausible only if it stays outside when moved by
+    1.96 standard errors either way; otherwise it is reported as weakly determined (a warning),
+    never silently accepted (the lock-step LINK run's zeta_s 3.49 +- 1.74 at eta_s 5 mrad/s)."""
+    from capstan.models.transmission.unit_plausibility import plausibility, split_by_uncertainty
+    params = {"zeta_s": 3.49, "eta_s_rad_s": 0.005, "tau_fc_Nm": 1.8, "K_in_Nm_rad": 700.0}
+    y = np.linspace(-3.0, 3.0, 101)
+    imp = plausibility(params, y, 0.5)
+    assert set(imp) == {"zeta_s"}
+    est, weak = split_by_uncertainty(imp, params, {"zeta_s": 1.74}, y, 0.5)
+    assert not est and len(weak) == 1 and weak[0].startswith("zeta_s") and "weakly determined" in weak[0]
+    est, weak = split_by_uncertainty(imp, params, {"zeta_s": 0.1}, y, 0.5)      # 3.49 - 0.2 > 3
+    assert set(est) == {"zeta_s"} and not weak
+    est, weak = split_by_uncertainty(imp, params, {}, y, 0.5)                    # no standard error
+    assert set(est) == {"zeta_s"} and not weak
+    # a lower-bound range (the elastic path's time constant) is moved the other way
+    p2 = {"d_in_Nms_rad": 80.0, "K_in_Nm_rad": 700.0}
+    imp2 = plausibility(p2, y, 0.5)
+    assert set(imp2) == {"d_in_Nms_rad"}
+    assert not split_by_uncertainty(imp2, p2, {"d_in_Nms_rad": 10.0}, y, 0.5)[0]     # 80 - 19.6 < 70
+    assert set(split_by_uncertainty(imp2, p2, {"d_in_Nms_rad": 2.0}, y, 0.5)[0]) == {"d_in_Nms_rad"}

@@ -56,7 +56,7 @@ from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
 from capstan.models.transmission.stick_slip import simulate_unit
-from capstan.models.transmission.unit_plausibility import plausibility
+from capstan.models.transmission.unit_plausibility import plausibility, split_by_uncertainty
 
 #: the output counts as held when std(tau_out) < HELD_FRACTION * std(tau_in) (every run)
 HELD_FRACTION = 0.1
@@ -109,7 +109,8 @@ class DynamicFit:
     :ivar params: named parameters (SI; ``zeta_s`` dimensionless).
     :ivar stderr: standard errors (block sandwich), same keys.
     :ivar at_bound: parameters that ended on a bound of the physical domain.
-    :ivar implausible: ``{name: reason}`` for parameters outside their plausible range.
+    :ivar implausible: ``{name: reason}`` for parameters outside their plausible range even with
+        their uncertainty (1.96 standard errors); those outside only within it are in ``warnings``.
     :ivar undetermined: parameters whose standard error exceeds their magnitude (the data
         do not determine them; e.g. a stiffness in series with a softer presliding one).
     :ivar warnings: data findings stated in the report (e.g. a negative mean input power:
@@ -453,11 +454,11 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
         if (np.isfinite(lo[i]) and p[i] - lo[i] <= max(tol, 1e-4 * abs(lo[i]))) or \
                 (np.isfinite(hi[i]) and hi[i] - p[i] <= max(tol, 1e-4 * abs(hi[i]))):
             fit.at_bound.append(nm)
-    fit.implausible = plausibility(params, y, v95)
+    fit.implausible, weak = split_by_uncertainty(plausibility(params, y, v95), params, stderr, y, v95)
     fit.undetermined = [nm for i, nm in enumerate(names) if free[i] and stderr[nm] > abs(p[i])]
     if params["zeta_s"] - 1.0 <= 1e-3 and "eta_s_rad_s" not in fit.undetermined:
         fit.undetermined.append("eta_s_rad_s")     # no stiction peak: its width means nothing
-    fit.warnings = power_warnings(sig, form)
+    fit.warnings = power_warnings(sig, form) + weak
     return fit
 
 
