@@ -99,10 +99,9 @@ def limit_command_Nm(tau_raw_Nm: float, tau_prev_cmd_Nm: float, tau_max_Nm: floa
     multiple (limits narrower than a quantum are not supported: the command then keeps
     the nearest multiple).
     """
-    tau = min(max(tau_raw_Nm, -tau_max_Nm), tau_max_Nm)
-    tau = min(max(tau, tau_prev_cmd_Nm - dtau_max_step_Nm), tau_prev_cmd_Nm + dtau_max_step_Nm)
-    lo = max(tau_prev_cmd_Nm - dtau_max_step_Nm, -tau_max_Nm)      # both limits, for the rounding
-    hi = min(tau_prev_cmd_Nm + dtau_max_step_Nm, tau_max_Nm)
+    rate_lo, rate_hi = tau_prev_cmd_Nm - dtau_max_step_Nm, tau_prev_cmd_Nm + dtau_max_step_Nm
+    tau = min(max(min(max(tau_raw_Nm, -tau_max_Nm), tau_max_Nm), rate_lo), rate_hi)
+    lo, hi = max(rate_lo, -tau_max_Nm), min(rate_hi, tau_max_Nm)    # both limits, for the rounding
     q = quantum_Nm
     if q <= 0.0:
         return tau

@@ -23,7 +23,8 @@ Control law (per cycle, ``k``)::
     C e      = kp e - D tau_in     derivative on the measurement only: the reference jumps
                                    at 400 Hz (feedforward) and a derivative on it would kick
                + k_b BP[e]         band gain (feedback.band_gain, faded like kp): BP a 4th-order
-                                   band-pass over the strokes' band (0.5-2 Hz), 0 at DC
+                                   band-pass over the strokes' band (feedback.band_low_hz-band_high_hz,
+                                   shipped 0.3-2 Hz), 0 at DC
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
