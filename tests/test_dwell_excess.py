@@ -11,7 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from capstan.models.closure.effects_runtime import dwell_breakaway_excess_Nm, effect_loss_Nm, friction_shape
+from capstan.models.closure.dynamic_effects import dwell_breakaway_excess_Nm
+from capstan.models.closure.effects_runtime import effect_loss_Nm, friction_shape
 from capstan.models.transmission.stick_slip import simulate_unit
 
 TAU_FC, ZETA_S, ETA_S = 1.0, 1.7, 2.0          # a wide Stribeck peak, as the link's refit finds it

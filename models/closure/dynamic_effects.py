@@ -46,6 +46,7 @@ from scipy.optimize import least_squares, minimize
 from capstan.models.closure.dynamic_baseline import DynamicFit, Mods, _initial, _predict, _target, _velocity_scale
 from capstan.models.closure.residual_trace import describe_curve, hat_basis, knots_for
 from capstan.models.closure.signals import Signals
+from capstan.models.transmission.stick_slip import capacity_Nm
 
 #: knots of an empirical in-model curve
 N_KNOTS = 5
@@ -65,6 +66,28 @@ DWELL_GRID_FINE = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.25, 0.5, 1.0,
                         for s0 in (0.005, 0.01, 0.02, 0.04, 0.08))
 
 ModsFn = Callable[[Signals, dict, np.ndarray], Mods]
+
+
+def dwell_breakaway_excess_Nm(amp_Nm: float, tau_age_s: float, rest_s: np.ndarray | float, zeta_s: float,
+                              eta_s_rad_s: float, v_rad_s: float) -> np.ndarray | float:
+    """Friction a learned ``dwell_stiction`` adds at a motion onset after a rest of ``rest_s``
+    [Nm]: ``amp (1 + (zeta_s - 1) exp(-(v/eta_s)^2)) (1 - exp(-rest/tau_age))`` at slide 0.
+
+    ``amp_Nm`` scales the friction *capacity*, Stribeck peak included (the dwell candidate's
+    ``cap_scale`` multiplies the unit's capacity
+    :func:`~capstan.models.transmission.stick_slip.capacity_Nm`, ``tau_fc [1 + (zeta_s - 1)
+    exp(-(v/eta_s)^2)]``, the same function here with ``amp`` for ``tau_fc``; the feedforward
+    ``amp s(dq)``), so the breakaway excess is ``amp`` times that factor at the onset speed
+    ``v_rad_s``, not ``amp`` alone (the two differ where the refit moves friction from
+    ``tau_fc`` into a wide Stribeck peak: zeta_s 1.4-1.8 with eta_s ~1-4 rad/s, measured on HIL
+    logs of the link). The feedforward's ``tanh(alpha dq)`` is left out: the closure's friction
+    takes the sign of the motion.
+
+    :param zeta_s: stiction ratio of the fragment's ``effects_shape`` (>= 1).
+    :param eta_s_rad_s: Stribeck speed of ``effects_shape`` (> 0).
+    """
+    return capacity_Nm(v_rad_s, amp_Nm, zeta_s, eta_s_rad_s) * (1.0 - np.exp(-np.asarray(rest_s) / tau_age_s))
+
 
 
 @dataclass(frozen=True)

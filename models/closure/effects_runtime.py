@@ -84,26 +84,6 @@ def friction_shape(dq_rad_s: float, alpha_s_rad: float, eta_s_rad_s: float, zeta
     return math.tanh(alpha_s_rad * dq_rad_s) * (1.0 + (zeta_s - 1.0) * math.exp(-x * x))
 
 
-def dwell_breakaway_excess_Nm(amp_Nm: float, tau_age_s: float, rest_s: np.ndarray | float, zeta_s: float,
-                              eta_s_rad_s: float, v_rad_s: float) -> np.ndarray | float:
-    """Friction a learned ``dwell_stiction`` adds at a motion onset after a rest of ``rest_s``
-    [Nm]: ``amp (1 + (zeta_s - 1) exp(-(v/eta_s)^2)) (1 - exp(-rest/tau_age))`` at slide 0.
-
-    ``amp_Nm`` scales the friction *capacity*, Stribeck peak included (the closure's
-    simulation multiplies ``tau_fc [1 + (zeta_s - 1) exp(-(v/eta_s)^2)]``; the feedforward
-    ``amp s(dq)``), so the breakaway excess is ``amp`` times that factor at the onset speed
-    ``v_rad_s``, not ``amp`` alone (the two differ where the refit moves friction from
-    ``tau_fc`` into a wide Stribeck peak: zeta_s 1.4-1.8 with eta_s ~1-4 rad/s, measured on HIL
-    logs of the link). The feedforward's ``tanh(alpha dq)`` is left out: the closure's friction
-    takes the sign of the motion.
-
-    :param zeta_s: stiction ratio of the fragment's ``effects_shape`` (>= 1).
-    :param eta_s_rad_s: Stribeck speed of ``effects_shape`` (> 0).
-    """
-    x = v_rad_s / eta_s_rad_s
-    return amp_Nm * (1.0 + (zeta_s - 1.0) * math.exp(-x * x)) * (1.0 - np.exp(-np.asarray(rest_s) / tau_age_s))
-
-
 @njit(cache=True)
 def effect_loss_Nm(code: int, p: np.ndarray, knots: np.ndarray, even: np.ndarray, odd: np.ndarray,
                    s: float, dq_rad_s: float, ddq_rad_s2: float, q_rad: float, rest_s: float, slide_rad: float,
