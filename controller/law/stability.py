@@ -253,11 +253,12 @@ def analyse(cfg: ControllerConfig) -> StabilityReport:
     fb = cfg.feedback
     faded = []
     if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0 or fb.band_gain != 0.0
+                                        or fb.output_torque_gain != 0.0
                                         or (inertia_comp_faded(fb) and fb.inertia_comp_kg_m2 != 0.0)):
         for g in FADE_FACTORS:      # the gate's low-pass moves kp, b (and a motor-source J_c) together
             sub = analyse(replace(cfg, feedback=replace(
                 fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0, deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad,
-                band_gain=g * fb.band_gain,
+                band_gain=g * fb.band_gain, output_torque_gain=g * fb.output_torque_gain,
                 inertia_comp_kg_m2=(g if inertia_comp_faded(fb) else 1.0) * fb.inertia_comp_kg_m2)))
             faded.append((g, sub.worst_phase_margin_deg, sub.worst_gain_margin_dB, sub.ok))
     return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded))
