@@ -78,8 +78,8 @@ class FeedbackGains:
     #: the hand's torque less the link's own inertia torque: what the sheath's friction and the motor add to
     #: the link's impedance is divided by ``1 + output_torque_gain``. In the loop only in slip (in stick the
     #: output torque does not follow the motor), where it adds ``k_o LP (R + b H_r) P`` (loop_model)
-    output_torque_gain: float = 0.0
-    output_torque_cutoff_hz: float = 10.0
+    output_torque_gain: float = 6.0
+    output_torque_cutoff_hz: float = 3.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -120,6 +120,9 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "output_torque_gain", p, fd.output_torque_gain, min_value=0.0, max_value=100.0),
         get_float(c, "output_torque_cutoff_hz", p, fd.output_torque_cutoff_hz, min_value=0.0, min_exclusive=True,
                   max_value=0.45 * nyq))
+    if out.output_torque_gain > 0.0 and out.rest_gate_cutoff_hz <= 0.0:
+        raise ConfigError(f"{p}.output_torque_gain", "needs rest_gate_cutoff_hz > 0: without the fade the output load "
+                          f"cells' noise x the gain reaches the command at rest, got {out.output_torque_gain}")
     if out.band_high_hz <= out.band_low_hz:
         raise ConfigError(f"{p}.band_high_hz", f"must be above band_low_hz {out.band_low_hz} Hz, got {out.band_high_hz}")
     return out
