@@ -30,8 +30,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
         deflection_link_lag_compensation: true  # + its lag x the link's acceleration (the link's, whatever the source)
         band_gain: 2.5               # + band_gain x BP[e], BP band_low_hz 0.3 - band_high_hz 2.0 Hz (faded like kp)
-        output_torque_gain: 6.0      # + gain x LP[e_out] on the output torque reference (output load cells, faded
-        output_torque_cutoff_hz: 3.0 # like kp), LP at this cutoff
+        output_torque_gain: 2.0      # + gain x LP[e_out] on the output torque reference (output load cells, faded
+        output_torque_cutoff_hz: 10.0  # like kp), LP at this cutoff
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,

@@ -78,8 +78,8 @@ class FeedbackGains:
     #: the hand's torque less the link's own inertia torque: what the sheath's friction and the motor add to
     #: the link's impedance is divided by ``1 + output_torque_gain``. In the loop only in slip (in stick the
     #: output torque does not follow the motor), where it adds ``k_o LP (R + b H_r) P`` (loop_model)
-    output_torque_gain: float = 6.0
-    output_torque_cutoff_hz: float = 3.0
+    output_torque_gain: float = 2.0
+    output_torque_cutoff_hz: float = 10.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:

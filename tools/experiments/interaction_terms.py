@@ -79,7 +79,7 @@ MOTOR_INERTIA_COMP = {"inertia_comp_kg_m2": 0.45, "acceleration_source": "motor"
 TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
                            " (lag-compensated link rate) + integral trim + inertia compensation"
-                           " + output torque gain 6 (3 Hz)"),
+                           " + output torque gain 2 (10 Hz)"),
     TermVariant("no_output_torque_gain", "output torque gain off (the loop before it)",
                 extra={"feedback": {"output_torque_gain": 0.0}}),
     TermVariant("no_band_gain", "band gain off (the loop before it)", extra={"feedback": {"band_gain": 0.0}}),
