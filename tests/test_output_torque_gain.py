@@ -205,11 +205,18 @@ def test_a_firm_grip_in_the_analysis():
     """A hand holding the link closes a loop through its impedance that the free-link grid does not
     have. The loop model with the grip as link stiffness / damping: the shipped k_o 2 at 10 Hz keeps
     every point stable with PM >= 30 deg up to 1000 Nm/rad at 3 Nm s/rad; k_o 6 low-passed at 3 Hz (which
-    meets the free-link grid) is unstable with a 300 Nm/rad grip (near 5 Hz)."""
+    meets the free-link grid) is unstable with a 300 Nm/rad grip (near 5 Hz), and the start-up check's
+    grip points (``stability.grip_stiffness_Nm_rad``) refuse it, naming the grip; without them it passes."""
     from capstan.controller.law.stability import analyse_point, feedforward_noise_slope
     ship = ControllerConfig.from_mapping({})
+    assert check_margins(ship).grip_ok and len(check_margins(ship).grip) == 12
     hot = ControllerConfig.from_mapping({"feedback": {"output_torque_gain": 6.0, "output_torque_cutoff_hz": 3.0}})
-    assert check_margins(hot).ok
+    with pytest.raises(ConfigError, match="hand holding the link"):
+        check_margins(hot)
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {"output_torque_gain": 6.0, "output_torque_cutoff_hz": 3.0},
+                                                        "stability": {"grip_stiffness_Nm_rad": []}})).ok
+    with pytest.raises(ConfigError, match="grip_stiffness_Nm_rad"):
+        ControllerConfig.from_mapping({"stability": {"grip_stiffness_Nm_rad": [60.0, -1.0]}})
     slope = feedforward_noise_slope(ship, ship.stability.gyro_noise_rad_s)
     for k_h in (60.0, 300.0, 1000.0):
         for k_c in (200.0, 300.0):

@@ -300,7 +300,8 @@ class ControllerConfig:
             },
             "safety": asdict(self.safety),
             "stability": {**asdict(self.stability),
-                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad)},
+                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad),
+                          "grip_stiffness_Nm_rad": list(self.stability.grip_stiffness_Nm_rad)},
         }
 
 
