@@ -90,6 +90,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         min_gain_margin_dB: 6.0
         tension_noise_N: 0.3         # load-cell noise per channel (std) for the noise gains
         gyro_noise_rad_s: 0.002      # gyro noise (std)
+        grip_stiffness_Nm_rad: [60.0, 300.0, 1000.0]   # a hand holding the link: slip points with this stiffness
+        grip_damping_Nms_rad: 3.0    # and damping on the link, at PM >= min_grip_phase_margin_deg 30 ([] = off)
 
 All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
 (with the routing as its curvature profile) so a log stores the exact config used.
