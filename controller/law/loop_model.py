@@ -16,7 +16,7 @@ so the feedback controller from the measured ``tau_in`` to ``u`` is
 with a zero-order hold (scipy ``cont2discrete``), ``d`` the extra I/O delay in cycles
 (CANopen RPDO/SYNC/drive update and sensor transport beyond the hold).
 
-Plant, linearised (SI, torques at the motor side, ``r_in = r_out``):
+Plant, linearised (SI, torques at the motor side, ``r_in = r_out``; :mod:`capstan.controller.law.loop_plant`):
 
 * ``stick`` — the transmission friction holds the output: ``P = K/(J s^2 + B s + K)``;
 * ``slip``  — friction constant (no incremental effect), the link free:
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
@@ -41,6 +40,9 @@ from capstan.controller.law.config import AccelerationSource, ControllerConfig, 
 from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
                                         q_filter_coefficients, qpinv_filter_coefficients)
+from capstan.controller.law.loop_plant import (PlantPoint, plant_continuous, plant_discrete,  # noqa: F401 (re-exported)
+                                               plant_link_velocity_continuous, plant_state_space,
+                                               plant_velocity_continuous)
 
 TF = tuple[np.ndarray, np.ndarray]
 
@@ -142,52 +144,6 @@ def output_torque_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarra
     return fb.output_torque_gain * freq_response((np.array([1.0 - a]), np.array([1.0, -a])), f_hz, dt) * resp
 
 
-@dataclass(frozen=True)
-class PlantPoint:
-    """One linearisation of the plant (SI): motor side and, for slip, the link.
-
-    :ivar stiffness_Nm_rad: transmission stiffness K_c [Nm/rad].
-    :ivar motor_inertia_kg_m2: J_m [kg m^2]; ``motor_damping_Nms_rad``: B_m [Nm s/rad].
-    :ivar slip: False = stick (output held by friction), True = slip (link free).
-    :ivar link_inertia_kg_m2, link_damping_Nms_rad, link_stiffness_Nm_rad: the link in slip.
-    """
-
-    stiffness_Nm_rad: float
-    motor_inertia_kg_m2: float
-    motor_damping_Nms_rad: float
-    slip: bool = False
-    link_inertia_kg_m2: float = 0.17
-    link_damping_Nms_rad: float = 0.02
-    link_stiffness_Nm_rad: float = 3.78
-
-
-def plant_continuous(p: PlantPoint) -> TF:
-    """``P(s)`` (descending powers of s): applied motor torque -> tau_in."""
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    if not p.slip:
-        return np.array([K]), np.polyadd(mm, [K])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return K * ml, np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
-
-
-def plant_velocity_continuous(p: PlantPoint) -> TF:
-    """``P_v(s)`` (descending powers of s): applied motor torque -> motor velocity dq_m."""
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    if not p.slip:
-        return np.array([1.0, 0.0]), np.polyadd(mm, [K])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return np.polymul([1.0, 0.0], np.polyadd(ml, [K])), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
-
-
-def plant_link_velocity_continuous(p: PlantPoint) -> TF:
-    """``P_o(s)``: applied motor torque -> link velocity dq_out (0 when the output sticks)."""
-    if not p.slip:
-        return np.array([0.0]), np.array([1.0])
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return np.array([K, 0.0]), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
-
-
 def acceleration_filter(cfg: ControllerConfig, source: AccelerationSource | None = None) -> TF:
     """``A(z)``: velocity -> the step's acceleration [1/s], of ``source`` (default: the inertia
     compensation's, ``feedback.acceleration_source``; the deflection damping's lead always takes the link's).
@@ -268,20 +224,6 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
     return c, loop
 
 
-def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int, plant: TF | None = None) -> TF:
-    """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)
-    of ``plant`` (descending powers of s; default :func:`plant_continuous`)."""
-    with warnings.catch_warnings():     # ZOH of a velocity leaves a ~1e-20 leading numerator term
-        warnings.simplefilter("ignore", signal.BadCoefficients)
-        num, den, _ = signal.cont2discrete(plant_continuous(p) if plant is None else plant, dt_s, method="zoh")
-    num = np.trim_zeros(np.atleast_2d(num)[0], "f") if np.any(num) else np.zeros(1)
-    den = np.atleast_1d(den)
-    # descending powers of z -> ascending z^-1 with the relative degree as leading zeros
-    rel = len(den) - len(num)
-    num = np.concatenate((np.zeros(rel + delay_cycles), num))
-    return num, den
-
-
 def freq_response(tf: TF, f_hz: np.ndarray, dt_s: float) -> np.ndarray:
     """Complex response of an ascending-z^-1 ratio at ``f_hz``."""
     zi = np.exp(-2j * math.pi * np.asarray(f_hz) * dt_s)
@@ -309,24 +251,6 @@ class _Block:
     def step(self, x: np.ndarray, u: float) -> tuple[float, np.ndarray]:
         y = float((self.C @ x).sum() + self.D[0, 0] * u)
         return y, self.A @ x + self.B[:, 0] * u
-
-
-def plant_state_space(p: PlantPoint, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Physical states (q_m, dq_m[, q_o, dq_o]) discretised with a zero-order hold:
-    ``(A, B, C)`` with ``x' = A x + B u``, ``tau_in = C x``."""
-    K, J, B = p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.motor_damping_Nms_rad
-    if not p.slip:
-        a = np.array([[0.0, 1.0], [-K / J, -B / J]])
-        b = np.array([[0.0], [1.0 / J]])
-        c = np.array([[K, 0.0]])
-    else:
-        Jl, bl, kg = p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad
-        a = np.array([[0.0, 1.0, 0.0, 0.0], [-K / J, -B / J, K / J, 0.0],
-                      [0.0, 0.0, 0.0, 1.0], [K / Jl, 0.0, -(K + kg) / Jl, -bl / Jl]])
-        b = np.array([[0.0], [1.0 / J], [0.0], [0.0]])
-        c = np.array([[K, 0.0, -K, 0.0]])
-    ad, bd, cd, _, _ = signal.cont2discrete((a, b, c, np.zeros((1, 1))), dt_s, method="zoh")
-    return ad, bd[:, 0], cd[0]
 
 
 def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) -> np.ndarray:
