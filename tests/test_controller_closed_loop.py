@@ -28,7 +28,8 @@ def _setup(loop="ldo", k_c=240.0, j_m=0.73):
     # the controller keeps its nominal plant (K_c = 240, J_m = 0.73) whatever the rig has
     # the lock-step gains of the paper's design (the shipped defaults are the delay-robust ones)
     ctl = Controller(ControllerConfig.from_mapping({"torque_loop": loop, "gravity": {"enabled": False},
-                                                   "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0},
+                                                   "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
+                                                                "output_torque_gain": 0.0},
                                                    "feedforward": {"enabled": False}}))
     return LockStep(ctl, rig)
 

@@ -19,7 +19,7 @@ from test_torque_loop import OLD_LOOP, _quiet, _run_step_physical
 #: the strongest torque feedback inside the margins (shipped: kp 0.75, b 60, link 30 Hz with its lag
 #: compensated), without the rest gate (the linear loop the analysis has)
 SHIPPED_LINEAR = {"kp": 1.25, "deflection_damping_Nms_rad": 100.0, "deflection_link_cutoff_hz": 150.0,
-                  "deflection_link_lag_compensation": False, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0,
+                  "deflection_link_lag_compensation": False, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "output_torque_gain": 0.0,
                   "inertia_comp_kg_m2": 0.0}
 SHEATH_STICK = PlantPoint(3300.0, 0.51, 0.5)        # the grid point that limits the phase margin
 
@@ -119,7 +119,7 @@ def test_shipped_feedback_with_lag_compensation_decays_as_the_analysis_says(p):
     """The shipped gains (kp 0.75, b 60, link 30 Hz led by its lag x J_c's link acceleration, J_c 0.2)
     at the points that limit them (slip, J_m +30 %; sheath stick): stable by the analysis, and the
     compiled step against the physical plant (IMU at 400 Hz, 2-cycle FIFO) decays."""
-    cfg = _linear({"rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "kp": 0.75, "deflection_damping_Nms_rad": 60.0,
+    cfg = _linear({"rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "output_torque_gain": 0.0, "kp": 0.75, "deflection_damping_Nms_rad": 60.0,
                    "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True,
                    "inertia_comp_kg_m2": 0.2})
     assert float(np.max(np.abs(closed_loop_poles(cfg, p, 2)))) < 1.0
@@ -187,6 +187,7 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
     assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
     on = {"deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
+          "output_torque_gain": 0.0,
           "band_gain": 0.0}     # the loop this was tuned on, before the band gain
     with pytest.raises(ConfigError, match="phase margin"):
         check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.3}}))
@@ -200,7 +201,7 @@ def test_start_up_check_covers_the_faded_gains():
     rest (GM 5.7 dB, the free link's residual gravity mode in slip): refused, saying which fade fails."""
     from capstan.controller.law.stability import analyse, check_margins
     from capstan.models.common.errors import ConfigError
-    m = {"feedback": {"inertia_comp_kg_m2": 0.34, "deflection_link_cutoff_hz": 150.0,
+    m = {"feedback": {"inertia_comp_kg_m2": 0.34, "deflection_link_cutoff_hz": 150.0, "output_torque_gain": 0.0,
                       "deflection_link_lag_compensation": False}}
     rep = analyse(ControllerConfig.from_mapping(m))
     assert rep.all_stable and rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0

@@ -69,7 +69,7 @@ def test_stribeck_shape_eq21():
 
 def _ctl(**ff):
     m = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
-                                                "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
+                                                "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0, "output_torque_gain": 0.0}, "gravity": {"enabled": True, "m_g_l_Nm": 3.78},
          "filters": {"q_out_blend_hz": 0.0},      # the raw angle: these cycles hold q with a rate
          # no slew limit: these tests check eq (21) cycle by cycle (the limit has its own test)
          "feedforward": dict({"enabled": True, "routing": {"length_m": 1.379, "theta_rad": 5.0},

@@ -113,12 +113,13 @@ def test_experiment_says_which_loop_it_ran():
 @pytest.fixture(scope="module")
 def fast_delayed():
     """The shipped loop on the fast condition with the daemon's delay: friction feedforward
-    and inertia compensation on and off (4 runs)."""
+    and inertia compensation on and off, the loops before, and without the output torque gain."""
     cond = CONDITIONS["fast_low_bending"]
-    no_jc = {"feedback": {"inertia_comp_kg_m2": 0.0}}
+    no_jc = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}}
     prev = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0,      # the loop before
-            "inertia_comp_kg_m2": 0.3, "band_gain": 0.0}
+            "inertia_comp_kg_m2": 0.3, "band_gain": 0.0, "output_torque_gain": 0.0}
     runs = {"shipped_ff": (True, None), "shipped_gravity_only": (False, no_jc),
+            "no_output_gain_ff": (True, {"feedback": {"output_torque_gain": 0.0}}),
             "prev_ff": (True, {"feedback": prev}), "prev_gravity_only": (False, {"feedback": {**prev, **no_jc["feedback"]}}),
             "prev_ff_only": (True, {"feedback": {**prev, **no_jc["feedback"]}}), "prev_jc_only": (False, {"feedback": prev})}
     return {k: run_interaction(cond, controller_mapping(cond, "shipped", ff, extra=ex), DURATION_S, delay_cycles=2)
@@ -137,7 +138,8 @@ def test_shipped_loop_is_compared_with_its_own_uncompensated_run(fast_delayed):
     cond = CONDITIONS["fast_low_bending"]
     base = ControllerConfig.from_mapping(controller_mapping(cond, "shipped", False,
                                                             extra=CONTROLLER_EXTRA["shipped_gravity_only"]))
-    assert base.feedback.inertia_comp_kg_m2 == 0.0 and not base.feedforward.enabled and analyse(base).ok
+    assert base.feedback.inertia_comp_kg_m2 == 0.0 and base.feedback.output_torque_gain == 0.0
+    assert not base.feedforward.enabled and analyse(base).ok
     assert not analyse(ControllerConfig.from_mapping(controller_mapping(cond, "pid", False))).ok
     assert BASELINE["shipped_ff"] == "shipped_gravity_only" and BASELINE["ldo_ff"] == "pid_gravity_only"
     r = fast_delayed
@@ -174,10 +176,14 @@ def test_torque_feedback_with_deflection_damping_hides_most_of_the_motor(fast_de
     inertia no longer outweighs the friction)."""
     from capstan.controller.law.config import ControllerConfig
     from capstan.controller.law.stability import analyse
-    new, old = fast_delayed["shipped_ff"], fast_delayed["prev_ff"]
+    # the tau_in loop alone: without the output torque gain (which puts the hand's torque x 6 in the reference)
+    new, old = fast_delayed["no_output_gain_ff"], fast_delayed["prev_ff"]
     assert new["rms_tau_in_err_Nm"] < 0.5 * old["rms_tau_in_err_Nm"]
     assert new["mean_abs_tau_h_Nm"] < 0.5 * old["mean_abs_tau_h_Nm"]
     assert new["faulted"] == 0.0
+    # the output torque gain takes off part of what is left of the motor and the friction (fast: 0.75 -> 0.6 Nm)
+    assert fast_delayed["shipped_ff"]["mean_abs_tau_h_Nm"] < 0.85 * new["mean_abs_tau_h_Nm"]
+    new = fast_delayed["shipped_ff"]
     assert new["mean_abs_tau_h_decel_Nm"] < fast_delayed["shipped_gravity_only"]["mean_abs_tau_h_decel_Nm"]
     cond = CONDITIONS["fast_low_bending"]
     assert analyse(ControllerConfig.from_mapping(controller_mapping(cond, "shipped", True))).ok

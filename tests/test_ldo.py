@@ -98,7 +98,7 @@ def _run_nominal(ctl, k_c=240.0, j_m=0.73, b_m=0.5, d_Nm=2.0, t_dist_s=0.1, t_en
 def _ctl(loop="ldo", cutoff_hz=10.0, **extra):
     m = {"torque_loop": loop, "ldo": {"q_cutoff_hz": cutoff_hz}, "gravity": {"enabled": False},
          "feedforward": {"enabled": False}, "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,   # lock-step gains
-                      "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0}}
+                      "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0, "output_torque_gain": 0.0}}
     m.update(extra)
     return Controller(ControllerConfig.from_mapping(m))
 
@@ -119,6 +119,6 @@ def test_without_observer_a_p_loop_keeps_an_offset():
     """Contrast: P(D) alone leaves the static offset d / (1 + kp) of a motor disturbance."""
     d = 2.0
     out = _run_nominal(_ctl(loop="pid", feedback={"kp": 5.0, "kd_s": 0.05, "ki_1_s": 0.0,
-                                                   "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0}), d_Nm=d)
+                                                   "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0, "output_torque_gain": 0.0}), d_Nm=d)
     kp = 5.0
     assert out[-1, 1] == pytest.approx(d / (1 + kp), rel=0.02)

@@ -82,8 +82,9 @@ def test_start_up_check_refuses_a_pi_with_its_zero_at_the_slow_pole():
     """With the shipped loop and its delay, ki 0.5 1/s already misses the phase margin (at rest, where
     kp, b and the band gain fade out and the integral stays: 22 deg, GM 0.5 dB, slip 0.2 Hz; without the
     band gain also in motion: 35 deg), ki 3 (the zero near the overdamped pole, ~4 kp) is unstable in
-    slip; 0.15 (shipped) passes."""
-    for ki, what in ((0.5, "phase margin"), (3.0, "UNSTABLE")):
+    slip (at rest, where only the integral is left; in motion the output torque gain's path keeps it
+    stable, PM 38 deg); 0.15 (shipped) passes."""
+    for ki, what in ((0.5, "phase margin"), (3.0, "UNSTABLE|x0 \\(rest gate\\): phase margin -inf")):
         with pytest.raises(ConfigError, match=what):
             check_margins(ControllerConfig.from_mapping({"feedback": {"ki_1_s": ki}}))
     assert check_margins(ControllerConfig.from_mapping({"feedback": {"ki_1_s": 0.15}})).ok

@@ -26,9 +26,10 @@ from test_torque_loop import OLD_LOOP, _run_step_physical
 #: fade, without the band gain
 MOTOR_SET = {"kp": 0.75, "deflection_damping_Nms_rad": 80.0, "inertia_comp_kg_m2": 0.45, "acceleration_source": "motor",
            "acceleration_cutoff_hz": 5.0, "deflection_link_cutoff_hz": 80.0, "deflection_link_lag_compensation": False,
-           "deflection_reference_cutoff_hz": 2.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.15, "band_gain": 0.0}
+           "deflection_reference_cutoff_hz": 2.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.15, "band_gain": 0.0,
+             "output_torque_gain": 0.0}
 #: ... as the linear loop the analysis has at full gains (no fade, no integral trim)
-MOTOR_LINEAR = {**MOTOR_SET, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0}
+MOTOR_LINEAR = {**MOTOR_SET, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "output_torque_gain": 0.0}
 #: the grid points that limit it: slip at J_m +30 % (phase margin), slip at K 200 / J_m -30 % (gain
 #: margin), sheath stick at J_m -30 % (the damping's own crossover with the delay)
 LIMITING = [PlantPoint(300.0, 0.949, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
@@ -122,7 +123,8 @@ def test_start_up_check_on_sets_of_this_structure():
                       ({"deflection_damping_Nms_rad": 40.0}, "torque loop is not robust")):
         with pytest.raises(ConfigError, match=what):
             check_margins(ControllerConfig.from_mapping({"feedback": {**MOTOR_SET, **bad}}))
-    at_rest_unfaded = {**MOTOR_SET, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0}
+    at_rest_unfaded = {**MOTOR_SET, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0,
+                       "output_torque_gain": 0.0}
     assert not inertia_comp_faded(ControllerConfig.from_mapping({"feedback": at_rest_unfaded}).feedback)
     assert not analyse(ControllerConfig.from_mapping({"feedback": at_rest_unfaded})).all_stable
     with pytest.raises(ConfigError, match="UNSTABLE"):

@@ -30,6 +30,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
         deflection_link_lag_compensation: true  # + its lag x the link's acceleration (the link's, whatever the source)
         band_gain: 2.5               # + band_gain x BP[e], BP band_low_hz 0.3 - band_high_hz 2.0 Hz (faded like kp)
+        output_torque_gain: 2.0      # + gain x LP[e_out] on the output torque reference (output load cells, faded
+        output_torque_cutoff_hz: 10.0  # like kp), LP at this cutoff
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
@@ -88,6 +90,8 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         min_gain_margin_dB: 6.0
         tension_noise_N: 0.3         # load-cell noise per channel (std) for the noise gains
         gyro_noise_rad_s: 0.002      # gyro noise (std)
+        grip_stiffness_Nm_rad: [60.0, 300.0, 1000.0]   # a hand holding the link: slip points with this stiffness
+        grip_damping_Nms_rad: 3.0    # and damping on the link, at PM >= min_grip_phase_margin_deg 30 ([] = off)
 
 All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
 (with the routing as its curvature profile) so a log stores the exact config used.
@@ -298,7 +302,8 @@ class ControllerConfig:
             },
             "safety": asdict(self.safety),
             "stability": {**asdict(self.stability),
-                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad)},
+                          "stiffness_range_Nm_rad": list(self.stability.stiffness_range_Nm_rad),
+                          "grip_stiffness_Nm_rad": list(self.stability.grip_stiffness_Nm_rad)},
         }
 
 

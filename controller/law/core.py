@@ -54,6 +54,9 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_KI_DT] = fb.ki_1_s * dt
     c[_s.C_BAND_GAIN] = fb.band_gain
     c[_s.C_BAND_SOS:_s.C_BAND_SOS + 10] = band_pass_sos(fb.band_low_hz, fb.band_high_hz, dt).ravel()
+    c[_s.C_OUT_GAIN] = fb.output_torque_gain
+    c[_s.C_OUT_ALPHA] = lowpass_alpha(fb.output_torque_cutoff_hz, dt)
+    c[_s.C_R_OUT] = p.r_out_m
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0

@@ -72,6 +72,14 @@ class FeedbackGains:
     band_gain: float = 2.5
     band_low_hz: float = 0.3
     band_high_hz: float = 2.0
+    #: gain on the output torque's error [Nm/Nm] (0 = off): ``+ output_torque_gain * LP[e_out]`` on the output
+    #: torque reference, ``e_out = tau_g + tau_out_ref - r_out (T_up_out - T_lo_out)`` from the output load
+    #: cells, low-passed at ``output_torque_cutoff_hz`` [Hz], faded with kp (off at rest). In motion e_out is
+    #: the hand's torque less the link's own inertia torque: what the sheath's friction and the motor add to
+    #: the link's impedance is divided by ``1 + output_torque_gain``. In the loop only in slip (in stick the
+    #: output torque does not follow the motor), where it adds ``k_o LP (R + b H_r) P`` (loop_model)
+    output_torque_gain: float = 2.0
+    output_torque_cutoff_hz: float = 10.0
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -83,7 +91,7 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
                        "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source",
                        "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz",
                        "rest_gate_cutoff_hz", "deflection_link_lag_compensation", "band_gain", "band_low_hz",
-                       "band_high_hz"}, p)
+                       "band_high_hz", "output_torque_gain", "output_torque_cutoff_hz"}, p)
     source = AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
                                            fd.acceleration_source.name.lower()).upper()]
     lag = get_bool(c, "deflection_link_lag_compensation", p, fd.deflection_link_lag_compensation)
@@ -108,7 +116,13 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         lag,
         get_float(c, "band_gain", p, fd.band_gain, min_value=0.0, max_value=100.0),
         get_float(c, "band_low_hz", p, fd.band_low_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq),
-        get_float(c, "band_high_hz", p, fd.band_high_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq))
+        get_float(c, "band_high_hz", p, fd.band_high_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq),
+        get_float(c, "output_torque_gain", p, fd.output_torque_gain, min_value=0.0, max_value=100.0),
+        get_float(c, "output_torque_cutoff_hz", p, fd.output_torque_cutoff_hz, min_value=0.0, min_exclusive=True,
+                  max_value=0.45 * nyq))
+    if out.output_torque_gain > 0.0 and out.rest_gate_cutoff_hz <= 0.0:
+        raise ConfigError(f"{p}.output_torque_gain", "needs rest_gate_cutoff_hz > 0: without the fade the output load "
+                          f"cells' noise x the gain reaches the command at rest, got {out.output_torque_gain}")
     if out.band_high_hz <= out.band_low_hz:
         raise ConfigError(f"{p}.band_high_hz", f"must be above band_low_hz {out.band_low_hz} Hz, got {out.band_high_hz}")
     return out

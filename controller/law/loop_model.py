@@ -16,7 +16,7 @@ so the feedback controller from the measured ``tau_in`` to ``u`` is
 with a zero-order hold (scipy ``cont2discrete``), ``d`` the extra I/O delay in cycles
 (CANopen RPDO/SYNC/drive update and sensor transport beyond the hold).
 
-Plant, linearised (SI, torques at the motor side, ``r_in = r_out``):
+Plant, linearised (SI, torques at the motor side, ``r_in = r_out``; :mod:`capstan.controller.law.loop_plant`):
 
 * ``stick`` — the transmission friction holds the output: ``P = K/(J s^2 + B s + K)``;
 * ``slip``  — friction constant (no incremental effect), the link free:
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
@@ -41,6 +40,9 @@ from capstan.controller.law.config import AccelerationSource, ControllerConfig, 
 from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
                                         q_filter_coefficients, qpinv_filter_coefficients)
+from capstan.controller.law.loop_plant import (PlantPoint, plant_continuous, plant_discrete,  # noqa: F401 (re-exported)
+                                               plant_link_velocity_continuous, plant_state_space,
+                                               plant_velocity_continuous)
 
 TF = tuple[np.ndarray, np.ndarray]
 
@@ -123,50 +125,23 @@ def reference_tf(cfg: ControllerConfig) -> TF:
     return _mul(g, (qf[1], _padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0)))
 
 
-@dataclass(frozen=True)
-class PlantPoint:
-    """One linearisation of the plant (SI): motor side and, for slip, the link.
+def output_torque_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """``k_o Ho (R + K_i + b H_r)`` at ``f_hz``: the measured output torque -> u, negated (``u = -this tau_out``).
 
-    :ivar stiffness_Nm_rad: transmission stiffness K_c [Nm/rad].
-    :ivar motor_inertia_kg_m2: J_m [kg m^2]; ``motor_damping_Nms_rad``: B_m [Nm s/rad].
-    :ivar slip: False = stick (output held by friction), True = slip (link free).
-    :ivar link_inertia_kg_m2, link_damping_Nms_rad, link_stiffness_Nm_rad: the link in slip.
-    """
-
-    stiffness_Nm_rad: float
-    motor_inertia_kg_m2: float
-    motor_damping_Nms_rad: float
-    slip: bool = False
-    link_inertia_kg_m2: float = 0.17
-    link_damping_Nms_rad: float = 0.02
-    link_stiffness_Nm_rad: float = 3.78
-
-
-def plant_continuous(p: PlantPoint) -> TF:
-    """``P(s)`` (descending powers of s): applied motor torque -> tau_in."""
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    if not p.slip:
-        return np.array([K]), np.polyadd(mm, [K])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return K * ml, np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
-
-
-def plant_velocity_continuous(p: PlantPoint) -> TF:
-    """``P_v(s)`` (descending powers of s): applied motor torque -> motor velocity dq_m."""
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    if not p.slip:
-        return np.array([1.0, 0.0]), np.polyadd(mm, [K])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return np.polymul([1.0, 0.0], np.polyadd(ml, [K])), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
-
-
-def plant_link_velocity_continuous(p: PlantPoint) -> TF:
-    """``P_o(s)``: applied motor torque -> link velocity dq_out (0 when the output sticks)."""
-    if not p.slip:
-        return np.array([0.0]), np.array([1.0])
-    K, mm = p.stiffness_Nm_rad, np.array([p.motor_inertia_kg_m2, p.motor_damping_Nms_rad, 0.0])
-    ml = np.array([p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad])
-    return np.array([K, 0.0]), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
+    ``Ho`` the step's low-pass at ``feedback.output_torque_cutoff_hz``; the term enters the torque
+    reference, so it reaches u through the reference path :func:`reference_tf` ``R``, the PID's integral
+    on the error ``K_i = ki T / (1 - z^-1)`` and the deflection damping's reference rate ``b H_r``
+    (:func:`deflection_reference_filter`). Summed as responses: the expanded polynomial of the sum loses
+    the low frequencies to rounding (poles near z = 1). The gravity model's part of e_out is left out as
+    in the slip points' residual link stiffness (stability.slip_link_stiffness_Nm_rad)."""
+    fb, dt = cfg.feedback, cfg.dt_s
+    a = lowpass_alpha(fb.output_torque_cutoff_hz, dt)
+    resp = freq_response(reference_tf(cfg), f_hz, dt)
+    if cfg.torque_loop != TorqueLoop.LDO and fb.ki_1_s > 0.0:
+        resp = resp + freq_response((np.array([fb.ki_1_s * dt]), np.array([1.0, -1.0])), f_hz, dt)
+    if fb.deflection_damping_Nms_rad != 0.0:
+        resp = resp + fb.deflection_damping_Nms_rad * freq_response(deflection_reference_filter(cfg), f_hz, dt)
+    return fb.output_torque_gain * freq_response((np.array([1.0 - a]), np.array([1.0, -a])), f_hz, dt) * resp
 
 
 def acceleration_filter(cfg: ControllerConfig, source: AccelerationSource | None = None) -> TF:
@@ -219,7 +194,7 @@ def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
 def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                   f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
-    input, ``L = z^-d (C P - J_c A P_v + b (P_v - (H_l + lead A) P_o))`` (the inertia compensation is
+    input, ``L = z^-d (C P - J_c A P_v + b (P_v - (H_l + lead A) P_o) [+ output_torque_response P in slip])`` (the inertia compensation is
     positive feedback of the acceleration, so it enters with a minus sign; the deflection-rate
     damping ``b`` is negative feedback of the motor velocity less the link's, :func:`deflection_link_filter`,
     led by ``lead`` (:func:`capstan.controller.law.feedback_config.deflection_link_lead_s`) times the link's
@@ -243,21 +218,10 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                 defl = defl - lead * freq_response(_mul(acceleration_filter(cfg, AccelerationSource.LINK), pvo),
                                                    f_hz, cfg.dt_s)
         loop = loop + b * defl
+    if p.slip and cfg.feedback.output_torque_gain != 0.0:  # + k_o Ho (R + K_i + b H_r) P: tau_out = tau_in in slip
+        loop = loop + output_torque_response(cfg, f_hz) * freq_response(plant_discrete(p, cfg.dt_s, delay_cycles),
+                                                                         f_hz, cfg.dt_s)
     return c, loop
-
-
-def plant_discrete(p: PlantPoint, dt_s: float, delay_cycles: int, plant: TF | None = None) -> TF:
-    """``z^-d Pd(z)`` in ascending powers of z^-1 (zero-order hold, scipy ``cont2discrete``)
-    of ``plant`` (descending powers of s; default :func:`plant_continuous`)."""
-    with warnings.catch_warnings():     # ZOH of a velocity leaves a ~1e-20 leading numerator term
-        warnings.simplefilter("ignore", signal.BadCoefficients)
-        num, den, _ = signal.cont2discrete(plant_continuous(p) if plant is None else plant, dt_s, method="zoh")
-    num = np.trim_zeros(np.atleast_2d(num)[0], "f") if np.any(num) else np.zeros(1)
-    den = np.atleast_1d(den)
-    # descending powers of z -> ascending z^-1 with the relative degree as leading zeros
-    rel = len(den) - len(num)
-    num = np.concatenate((np.zeros(rel + delay_cycles), num))
-    return num, den
 
 
 def freq_response(tf: TF, f_hz: np.ndarray, dt_s: float) -> np.ndarray:
@@ -287,24 +251,6 @@ class _Block:
     def step(self, x: np.ndarray, u: float) -> tuple[float, np.ndarray]:
         y = float((self.C @ x).sum() + self.D[0, 0] * u)
         return y, self.A @ x + self.B[:, 0] * u
-
-
-def plant_state_space(p: PlantPoint, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Physical states (q_m, dq_m[, q_o, dq_o]) discretised with a zero-order hold:
-    ``(A, B, C)`` with ``x' = A x + B u``, ``tau_in = C x``."""
-    K, J, B = p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.motor_damping_Nms_rad
-    if not p.slip:
-        a = np.array([[0.0, 1.0], [-K / J, -B / J]])
-        b = np.array([[0.0], [1.0 / J]])
-        c = np.array([[K, 0.0]])
-    else:
-        Jl, bl, kg = p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad
-        a = np.array([[0.0, 1.0, 0.0, 0.0], [-K / J, -B / J, K / J, 0.0],
-                      [0.0, 0.0, 0.0, 1.0], [K / Jl, 0.0, -(K + kg) / Jl, -bl / Jl]])
-        b = np.array([[0.0], [1.0 / J], [0.0], [0.0]])
-        c = np.array([[K, 0.0, -K, 0.0]])
-    ad, bd, cd, _, _ = signal.cont2discrete((a, b, c, np.zeros((1, 1))), dt_s, method="zoh")
-    return ad, bd[:, 0], cd[0]
 
 
 def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) -> np.ndarray:
@@ -343,8 +289,14 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     # (with ki = 0 the step's integral stays 0: a constant, not a mode of the loop, so no state)
     integral = not ldo and fb.ki_1_s != 0.0
     Bd = _Block(band_filter(cfg))
+    # the output torque's gain: its low-pass on tau_out (= tau_in in slip, not moved by the motor in stick)
+    # and the deflection damping's reference rate, which the term moves
+    k_o = fb.output_torque_gain if p.slip else 0.0
+    a_o = lowpass_alpha(fb.output_torque_cutoff_hz, cfg.dt_s)
+    Ho = _Block((np.array([1.0 - a_o]), np.array([1.0, -a_o])) if k_o != 0.0 else none)
+    Hr = _Block(deflection_reference_filter(cfg) if k_o != 0.0 and b_defl != 0.0 else none)
     sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
-             AccL.n, Bd.n]
+             AccL.n, Bd.n, Ho.n, Hr.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -355,17 +307,21 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         tf_, out[1] = F1.step(xs[1], y)
         dd, out[2] = Dd.step(xs[2], tf_)
         qp, out[3] = QP.step(xs[3], tf_)
-        bd, out[12] = Bd.step(xs[12], tf_)      # the band gain on the error: -k_b BP tau_in
+        ho, out[13] = Ho.step(xs[13], y)
+        ref = -k_o * ho                          # the output torque's term in the reference
+        bd, out[12] = Bd.step(xs[12], tf_ - ref)      # the band gain on the error: -k_b BP (tau_in - ref)
         if ldo:
             m, out[4] = F2.step(xs[4], float(xs[6][0]))
             q, out[5] = Q.step(xs[5], m)
             out[7] = xs[7]
-            u = -(fb.kp * tf_ + dd + qp + bd) + q
+            u = -(fb.kp * (tf_ - ref) + dd + qp + bd) + q + ref
         else:
             out[4], out[5], out[6] = xs[4], xs[5], xs[6]
-            integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * tf_ if integral else 0.0
+            integ = float(xs[7][0]) - fb.ki_1_s * cfg.dt_s * (tf_ - ref) if integral else 0.0
             out[7] = np.array([integ]) if integral else xs[7]
-            u = -(fb.kp * tf_ + dd + bd) + integ
+            u = -(fb.kp * (tf_ - ref) + dd + bd) + integ + ref
+        v_ref, out[14] = Hr.step(xs[14], ref)
+        u += b_defl * v_ref
         v = float(xs[0][v_index]) if v_index >= 0 else 0.0
         acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc

@@ -56,6 +56,7 @@ class PointResult:
     gyro_to_cmd_std_Nm: float
     dominant_pole_abs: float = math.nan
     dominant_pole_hz: float = math.nan
+    grip_stiffness_Nm_rad: float = 0.0      # > 0: a slip point with a hand of this stiffness holding the link
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -75,6 +76,14 @@ class StabilityReport:
     #: with ``feedback.rest_gate_cutoff_hz`` > 0 the loop fades kp and the deflection damping (and J_c
     #: from the motor's acceleration) in and out together: (factor, worst phase margin [deg], worst gain margin [dB], ok) at the faded gains
     faded: tuple[tuple[float, float, float, bool], ...] = ()
+    #: the slip points with a hand holding the link (``stability.grip_stiffness_Nm_rad``) and what they need
+    grip: tuple[PointResult, ...] = ()
+    min_grip_phase_margin_deg: float = 0.0
+
+    @property
+    def grip_ok(self) -> bool:
+        """True if every grip point is stable with at least ``min_grip_phase_margin_deg``."""
+        return all(p.stable and p.phase_margin_deg >= self.min_grip_phase_margin_deg for p in self.grip)
 
     @property
     def worst_phase_margin_deg(self) -> float:
@@ -92,7 +101,8 @@ class StabilityReport:
     def ok(self) -> bool:
         """True if every point is stable and meets both required margins."""
         return (self.all_stable and self.worst_phase_margin_deg >= self.min_phase_margin_deg
-                and self.worst_gain_margin_dB >= self.min_gain_margin_dB and all(f[3] for f in self.faded))
+                and self.worst_gain_margin_dB >= self.min_gain_margin_dB and all(f[3] for f in self.faded)
+                and self.grip_ok)
 
     def nominal(self) -> PointResult:
         """The stick point in the middle of the grid (nominal stiffness and inertia)."""
@@ -109,7 +119,9 @@ class StabilityReport:
                 "worst_gyro_to_cmd_std_Nm": max(p.gyro_to_cmd_std_Nm for p in self.points),
                 "faded": [{"factor": f[0], "worst_phase_margin_deg": f[1], "worst_gain_margin_dB": f[2], "ok": f[3]}
                           for f in self.faded],
-                "points": [p.to_dict() for p in self.points]}
+                "points": [p.to_dict() for p in self.points],
+                "grip": {"ok": self.grip_ok, "required_phase_margin_deg": self.min_grip_phase_margin_deg,
+                         "points": [p.to_dict() for p in self.grip]}}
 
     def summary(self) -> str:
         """One line: worst margins against the requirement."""
@@ -126,6 +138,13 @@ class StabilityReport:
             if not ok:
                 text += (f"; with kp and the deflection damping faded to x{g:g} (rest gate): phase margin "
                          f"{pm:.1f} deg, gain margin {gm:.1f} dB")
+        bad_grip = [p for p in self.grip if not (p.stable and p.phase_margin_deg >= self.min_grip_phase_margin_deg)]
+        if bad_grip:
+            p = min(bad_grip, key=lambda q: q.phase_margin_deg if q.stable else -math.inf)
+            text += (f"; with a hand holding the link (slip, grip {p.grip_stiffness_Nm_rad:.0f} Nm/rad, K_c {p.stiffness_Nm_rad:.0f}, J_m "
+                     f"{p.motor_inertia_kg_m2:.2f}): "
+                     + (f"phase margin {p.phase_margin_deg:.1f} deg (need >= {self.min_grip_phase_margin_deg:g})"
+                        if p.stable else f"UNSTABLE, a mode at {p.dominant_pole_hz:.1f} Hz"))
         return text + f", I/O delay {self.delay_cycles} cycles"
 
 
@@ -239,8 +258,10 @@ def slip_link_stiffness_Nm_rad(cfg: ControllerConfig, st: StabilitySettings) -> 
     return max(k_link - cfg.m_g_l_Nm, st.gravity_model_error * k_link)
 
 
-def analyse(cfg: ControllerConfig) -> StabilityReport:
-    """The loop's margins and noise gains over the configured plant range.
+def analyse(cfg: ControllerConfig, grip: bool = True) -> StabilityReport:
+    """The loop's margins and noise gains over the configured plant range, and (``grip``) at the grip points
+    (:func:`grip_points`). The faded gains are checked with the grip at x0.5, not at x0: at rest the rest gate
+    also switches J_c off, and J_c on with kp and b still faded lasts only while the fade opens (~30 ms).
 
     :raises ConfigError: if the loop's filters cannot be built from the config.
     """
@@ -253,14 +274,35 @@ def analyse(cfg: ControllerConfig) -> StabilityReport:
     fb = cfg.feedback
     faded = []
     if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0 or fb.band_gain != 0.0
+                                        or fb.output_torque_gain != 0.0
                                         or (inertia_comp_faded(fb) and fb.inertia_comp_kg_m2 != 0.0)):
         for g in FADE_FACTORS:      # the gate's low-pass moves kp, b (and a motor-source J_c) together
             sub = analyse(replace(cfg, feedback=replace(
                 fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0, deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad,
-                band_gain=g * fb.band_gain,
-                inertia_comp_kg_m2=(g if inertia_comp_faded(fb) else 1.0) * fb.inertia_comp_kg_m2)))
+                band_gain=g * fb.band_gain, output_torque_gain=g * fb.output_torque_gain,
+                inertia_comp_kg_m2=(g if inertia_comp_faded(fb) else 1.0) * fb.inertia_comp_kg_m2)), grip=grip and g > 0.0)
             faded.append((g, sub.worst_phase_margin_deg, sub.worst_gain_margin_dB, sub.ok))
-    return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded))
+    return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded),
+                           grip_points(cfg, slope) if grip else (), st.min_grip_phase_margin_deg)
+
+
+def grip_points(cfg: ControllerConfig, gyro_slope: float) -> tuple[PointResult, ...]:
+    """The slip points with a hand holding the link: ``stability.grip_stiffness_Nm_rad`` x the K_c range's
+    ends x J_m +- the tolerance, the grip's stiffness and ``grip_damping_Nms_rad`` added to the link's.
+
+    :raises ValueError: if the loop's filters cannot be built (as :func:`analyse_point`)."""
+    st = cfg.stability
+    k_lo, k_hi = st.stiffness_range_Nm_rad
+    jm = cfg.plant.motor_inertia_kg_m2
+    k_link = slip_link_stiffness_Nm_rad(cfg, st)
+    out = []
+    for k_h in st.grip_stiffness_Nm_rad:
+        for k in (k_lo, k_hi):
+            for j in (jm * (1.0 - st.inertia_tolerance), jm * (1.0 + st.inertia_tolerance)):
+                p = PlantPoint(k, j, cfg.plant.motor_damping_Nms_rad, True, st.link_inertia_kg_m2,
+                               st.link_damping_Nms_rad + st.grip_damping_Nms_rad, k_link + k_h)
+                out.append(replace(analyse_point(cfg, st, p, gyro_slope), grip_stiffness_Nm_rad=k_h))
+    return tuple(out)
 
 
 #: the factors on kp and the deflection damping the fading rest gate is checked at besides 1 (0: at rest)

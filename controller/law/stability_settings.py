@@ -30,6 +30,13 @@ class StabilitySettings:
     #: gravity model (a positive feedback of the link angle) cancels the link's gravity stiffness
     #: ``link_stiffness_Nm_rad`` up to this residual, which is what the slip points keep
     gravity_model_error: float = 0.25
+    #: a hand holding the link (slip points with its stiffness [Nm/rad] and damping [Nm s/rad] on the link):
+    #: the output torque gain feeds the hand's torque back, so a firm grip closes a loop through it that the
+    #: free link does not have; checked at the K_c / J_m corners against ``min_grip_phase_margin_deg``
+    #: (the grip's own damping is light, so less than the free loop's requirement). Empty: not checked
+    grip_stiffness_Nm_rad: tuple[float, ...] = (60.0, 300.0, 1000.0)
+    grip_damping_Nms_rad: float = 3.0
+    min_grip_phase_margin_deg: float = 30.0
 
 
 def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
@@ -48,6 +55,14 @@ def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
             or not 0.0 < rng[0] <= rng[1]):
         raise ConfigError(f"{p}.stiffness_range_Nm_rad", f"must be [low, high] with 0 < low <= high, got {rng!r}")
 
+    grip = c.get("grip_stiffness_Nm_rad", list(d.grip_stiffness_Nm_rad))
+    if (not isinstance(grip, (list, tuple)) or len(grip) > 10
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and 0.0 < x <= 1e5
+                       for x in grip)):
+        raise ConfigError(f"{p}.grip_stiffness_Nm_rad", f"must be a list of up to 10 stiffnesses in (0, 1e5] Nm/rad "
+                          f"(empty: no grip check), got {grip!r}")
+    grip = tuple(float(x) for x in grip)
+
     def pos(key: str, hi: float) -> float:
         return get_float(c, key, p, getattr(d, key), min_value=0.0, max_value=hi)
 
@@ -59,4 +74,6 @@ def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
         get_float(c, "stick_stiffness_factor", p, d.stick_stiffness_factor, min_value=1.0, max_value=1000.0),
         get_float(c, "min_phase_margin_deg", p, d.min_phase_margin_deg, min_value=0.0, max_value=90.0),
         get_float(c, "min_gain_margin_dB", p, d.min_gain_margin_dB, min_value=0.0, max_value=40.0),
-        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0), pos("gravity_model_error", 1.0))
+        pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0), pos("gravity_model_error", 1.0),
+        grip, pos("grip_damping_Nms_rad", 1e3),
+        get_float(c, "min_grip_phase_margin_deg", p, d.min_grip_phase_margin_deg, min_value=0.0, max_value=90.0))

@@ -25,6 +25,10 @@ Control law (per cycle, ``k``)::
                + k_b BP[e]         band gain (feedback.band_gain, faded like kp): BP a 4th-order
                                    band-pass over the strokes' band (feedback.band_low_hz-band_high_hz,
                                    shipped 0.3-2 Hz), 0 at DC
+    tau_out_des += g_fb k_o LP[e_out]   output torque gain (feedback.output_torque_gain, faded like kp):
+                                   e_out = tau_g + tau_out_ref - r_out (T_up_out - T_lo_out), the hand's
+                                   torque less the link's own inertia torque, LP feedback.output_torque_cutoff_hz;
+                                   at rest (g_fb = 0) nothing, so load-cell noise stays off the command
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
@@ -142,7 +146,10 @@ C_DEFL_LEAD = 52        # lead on the link's velocity in the damping [s] (0 = of
 C_CMD_QUANTUM = 53      # the command's resolution [Nm] (safety.command_quantum_Nm; 0 = float64 as computed)
 C_BAND_GAIN = 54        # extra gain on the error in a band [Nm/Nm] (feedback.band_gain; 0 = off)
 C_BAND_SOS = 55         # 2 x 5 coefficients of its band-pass (two biquads, ldo.band_pass_sos)
-N_CFG = 65              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_OUT_GAIN = 65         # gain on the output torque's error [Nm/Nm] (feedback.output_torque_gain; 0 = off)
+C_OUT_ALPHA = 66        # pole of its low-pass (feedback.output_torque_cutoff_hz)
+C_R_OUT = 67            # output pulley radius [m]: tau_out = r_out (T_up_out - T_lo_out)
+N_CFG = 68              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -175,7 +182,8 @@ S_FBG = S_DEFL_REF + 1     # the held rest gate low-passed: the factor on kp and
 S_VM_PREV = S_FBG + 1      # previous motor velocity [rad/s] (J_c from the motor's acceleration)
 S_ACC_M = S_VM_PREV + 1    # the motor's filtered acceleration [rad/s^2] (J_c's, acceleration_source motor)
 S_BAND = S_ACC_M + 1       # 2 x 2 biquad states of the band-pass on the error (NaN until the first cycle set them)
-N_STATE = S_BAND + 4
+S_OUT_E = S_BAND + 4       # low-passed output torque error [Nm] (NaN until the first cycle set it)
+N_STATE = S_OUT_E + 1
 
 
 @njit(cache=True)
@@ -215,6 +223,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_DEFL_REF] = math.nan
         st[S_FBG] = 0.0
         st[S_BAND] = math.nan
+        st[S_OUT_E] = math.nan
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -247,16 +256,23 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     fc_target = st[S_FC_HELD] if cfg[C_FF_ON] != 0.0 else 0.0
     tau_fc = st[S_FC_OUT] + min(max(fc_target - st[S_FC_OUT], -cfg[C_FF_SLEW_STEP]), cfg[C_FF_SLEW_STEP])
     st[S_FC_OUT] = tau_fc
+    g_fb = 1.0          # the factor on kp, the band gain, the damping and the output torque's gain:
+    if cfg[C_FBG_ON] != 0.0:    # 1, or the faded rest gate
+        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_GATE])
     ff_motor = cfg[C_FF_MOTOR] != 0.0
     tau_out_des = tau_g + r.tau_out_ref_Nm
+    if cfg[C_OUT_GAIN] != 0.0:  # + g_fb k_o LP[e_out]: the output torque asked for less the measured one,
+        # the hand's torque less the link's inertia torque; raised in the reference, it divides what the
+        # transmission and the motor add to the link's own impedance by (1 + k_o)
+        e_out = tau_g + r.tau_out_ref_Nm - cfg[C_R_OUT] * (r.T_up_out_N - r.T_lo_out_N)
+        if math.isnan(st[S_OUT_E]):
+            st[S_OUT_E] = e_out
+        tau_out_des += g_fb * cfg[C_OUT_GAIN] * lowpass_step(cfg[C_OUT_ALPHA], st, S_OUT_E, e_out)
     if not ff_motor:
         tau_out_des += tau_fc
     tau_in_des = cfg[C_R_RATIO] * tau_out_des
 
     # ---- feedback
-    g_fb = 1.0          # the factor on kp and the deflection damping: 1, or the faded rest gate
-    if cfg[C_FBG_ON] != 0.0:
-        g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_GATE])
     e = tau_in_des - tau_in
     deriv = -cfg[C_KD_A1] * st[S_D] - cfg[C_KD_B0] * (tau_in - st[S_TIN_PREV])
     st[S_D] = deriv

@@ -66,7 +66,9 @@ class TermVariant:
 _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
 #: the loop before the deflection-rate damping: no torque feedback (kp 0), no damping, J_c 0.3
 _PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3,
-         "band_gain": 0.0}
+         "band_gain": 0.0, "output_torque_gain": 0.0}
+#: uncompensated: no inertia compensation and no output torque gain (it compensates friction and inertia too)
+_UNCOMPENSATED = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}}
 
 #: the inertia compensation from the motor's acceleration (faded in with kp and the damping): J_c 0.45
 #: with b 80 and the link rate at 80 Hz, no lead (the lead is link-acceleration feedback that shares J_c's
@@ -76,13 +78,16 @@ MOTOR_INERTIA_COMP = {"inertia_comp_kg_m2": 0.45, "acceleration_source": "motor"
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
-                           " (lag-compensated link rate) + integral trim + inertia compensation"),
+                           " (lag-compensated link rate) + integral trim + inertia compensation"
+                           " + output torque gain 2 (10 Hz)"),
+    TermVariant("no_output_torque_gain", "output torque gain off (the loop before it)",
+                extra={"feedback": {"output_torque_gain": 0.0}}),
     TermVariant("no_band_gain", "band gain off (the loop before it)", extra={"feedback": {"band_gain": 0.0}}),
     TermVariant("no_deflection_damping", "deflection-rate damping off, kp kept",
                 extra={"feedback": {"deflection_damping_Nms_rad": 0.0}}),
     TermVariant("no_torque_feedback", "kp 0 and no deflection damping (the loop before)", extra={"feedback": _PREV}),
-    TermVariant("kp_always_on", "kp and damping also at rest (no rest gate)",
-                extra={"feedback": {"rest_gate_cutoff_hz": 0.0}}),
+    TermVariant("kp_always_on", "kp and damping also at rest (no rest gate; output torque gain off: it needs the gate)",
+                extra={"feedback": {"rest_gate_cutoff_hz": 0.0, "output_torque_gain": 0.0}}),
     TermVariant("no_feedforward", "friction feedforward off", feedforward=False),
     TermVariant("no_inertia_comp", "inertia compensation off", extra=_NO_JC),
     TermVariant("inertia_comp_motor", "J_c 0.45 from the motor's acceleration (faded), b 80, link rate 80 Hz",
@@ -92,10 +97,10 @@ TERM_VARIANTS: tuple[TermVariant, ...] = (
                 extra={"feedforward": {"dead_band_rad_s": 0.004}}),
     TermVariant("no_delay", "command acts in its own cycle (lock-step)", delay_cycles=0),
     TermVariant("imu_1khz", "IMU at 1 kHz instead of 400 Hz", imu_rate_hz=1000.0),
-    TermVariant("gravity_only", "uncompensated: no feedforward, no inertia compensation",
-                feedforward=False, extra=_NO_JC),
+    TermVariant("gravity_only", "uncompensated: no feedforward, no inertia compensation, no output torque gain",
+                feedforward=False, extra=_UNCOMPENSATED),
     TermVariant("gravity_only_no_torque_feedback", "uncompensated, kp 0 and no damping (the loop before)",
-                feedforward=False, extra={"feedback": {**_PREV, "inertia_comp_kg_m2": 0.0}}),
+                feedforward=False, extra={"feedback": {**_PREV, "inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}}),
     TermVariant("paper_pid_gravity_only", "paper's gravity-only PID, lock-step gains (kp 5)",
                 loop="pid", feedforward=False),
 )

@@ -126,6 +126,9 @@ def run(args: argparse.Namespace) -> int:
     if fb.band_gain:
         print(f"band gain {fb.band_gain:g} on the error over {fb.band_low_hz:g}-{fb.band_high_hz:g} Hz "
               f"(4th-order band-pass, faded like kp)")
+    if fb.output_torque_gain:
+        print(f"output torque gain {fb.output_torque_gain:g} on the output load cells' error, low-pass "
+              f"{fb.output_torque_cutoff_hz:g} Hz (faded like kp; in the loop at the slip points)")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
           f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
@@ -140,6 +143,12 @@ def run(args: argparse.Namespace) -> int:
     for g, pm, gm, ok in rep.faded:
         print(f"faded to x{g:g} (kp {g * fb.kp:g}, damping {g * fb.deflection_damping_Nms_rad:g}): worst PM {pm:.1f} deg, "
               f"GM {gm:.1f} dB{'' if ok else ' FAILS'}")
+    if rep.grip:
+        w = min(rep.grip, key=lambda p: p.phase_margin_deg if p.stable else -math.inf)
+        print(f"a hand holding the link ({', '.join(f'{k:g}' for k in st.grip_stiffness_Nm_rad)} Nm/rad, "
+              f"{st.grip_damping_Nms_rad:g} Nm s/rad; slip, K_c and J_m corners): worst PM "
+              + (f"{w.phase_margin_deg:.1f} deg at {w.phase_margin_at_hz:.1f} Hz" if w.stable else "UNSTABLE")
+              + f" (grip {w.grip_stiffness_Nm_rad:g} Nm/rad; need >= {rep.min_grip_phase_margin_deg:g})")
     print(("OK: " if rep.ok else "FAILS: ") + rep.summary())
     if args.log:
         lc = out["log_check"]

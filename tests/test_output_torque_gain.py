@@ -1,0 +1,263 @@
+"""The output torque gain (``controller.feedback.output_torque_gain``, ``output_torque_cutoff_hz``):
+``+ k_o LP[e_out]`` on the output torque reference, ``e_out = tau_g + tau_out_ref - r_out (T_up_out -
+T_lo_out)`` from the output load cells, faded with kp. The loop model's path against the compiled step,
+the start-up check on sets of it, the compiled step closed on the physical plant at the slip points
+(where the path is in the loop) with the output load cells fed, the link's felt inertia against the
+rigid-link limit, the term's direction, a firm grip (a loop through the hand) in the analysis and on the
+distributed rig, and nothing at rest."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from capstan.controller.law.config import ControllerConfig
+from capstan.controller.law.core import Controller
+from capstan.controller.law.loop_model import PlantPoint, closed_loop_poles, output_torque_response
+from capstan.controller.law.stability import check_margins
+from capstan.models.common.errors import ConfigError
+from test_band_gain import SHIPPED_LINEAR
+from test_deflection_damping import _linear
+
+#: the shipped output torque gain (config/controller.yaml)
+K_O, F_O = 2.0, 10.0
+#: the linear loop with it: the rest gate's fade open within a few cycles (a fast cutoff, dead band 0)
+LINEAR = {**SHIPPED_LINEAR, "rest_gate_cutoff_hz": 200.0, "output_torque_gain": K_O, "output_torque_cutoff_hz": F_O}
+SLIP_POINTS = [PlantPoint(200.0, 0.511, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
+               PlantPoint(300.0, 0.949, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
+               PlantPoint(300.0, 0.511, 0.5, slip=True, link_stiffness_Nm_rad=0.945)]
+
+
+def _feed(r: np.ndarray, k: int, dt: float) -> None:
+    r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * dt
+    r["T_up_in_N"] = r["T_lo_in_N"] = r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
+    r["imu_new"] = 1
+    r["dq_m_rad_s"] = r["dq_out_rad_s"] = r["tau_out_ref_Nm"] = 0.0
+
+
+def test_the_analysis_output_path_is_the_steps():
+    """The compiled step's command for a pulse of measured output torque is ``-k_o Ho (R + b H_r)``
+    of it (the loop model's :func:`output_torque_response`), compared in frequency (DFT of the
+    step's response over 2^15 cycles, long enough for the 0.3 Hz band to decay) within 1e-3."""
+    cfg = _linear(LINEAR)
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    n, k0 = 2 ** 15, 300
+    u = np.zeros(n)
+    for k in range(n):
+        _feed(r, k, cfg.dt_s)
+        if k == k0:         # tau_out = r_out (T_up_out - T_lo_out) = 0.1 Nm for one cycle
+            r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + 1.25, 150.0 - 1.25
+        u[k] = ctl.step()
+    assert u[k0 - 1] == 0.0 and np.all(u[:k0] == 0.0)      # the fade had opened: nothing before the pulse
+    f = np.fft.rfftfreq(n, cfg.dt_s)
+    sel = (f > 0.05) & (f < 100.0)
+    h_step = np.fft.rfft(u)[sel] / (0.1 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
+    h_lm = -output_torque_response(cfg, f[sel])
+    assert np.max(np.abs(h_step - h_lm) / np.abs(h_lm)) < 1e-3
+
+
+def test_a_push_raises_the_reference_in_its_direction():
+    """In motion (fade open) a push on the output (the load cells read less output torque than asked
+    for: e_out > 0) raises the command by ``(1 + kp) k_o e_out`` once the low-pass and the band have
+    settled (ki 0; the band and the damping's reference rate are 0 at DC); a pull lowers it as much."""
+    cfg = _linear(LINEAR)
+    for sign in (1.0, -1.0):
+        ctl = Controller(cfg)
+        r = ctl.record[0]
+        for k in range(40000):
+            _feed(r, k, cfg.dt_s)
+            if k >= 300:    # e_out = -tau_out = 0.2 sign Nm
+                r["T_up_out_N"], r["T_lo_out_N"] = 150.0 - 2.5 * sign, 150.0 + 2.5 * sign
+            u = ctl.step()
+        assert u == pytest.approx((1.0 + 0.75) * K_O * 0.2 * sign, rel=2e-3)
+
+
+def test_start_up_check_on_output_torque_gains():
+    """The shipped k_o 2 at 10 Hz meets PM >= 45 deg / GM >= 6 dB over the grid with the fade; k_o 6 at
+    10 Hz is refused (the slip points' free-link mode near 11 Hz), and so is k_o 12 at 1 Hz (half faded,
+    PM 39 deg). Without the rest gate's fade, or negative, it is refused naming the key."""
+    rep = check_margins(ControllerConfig.from_mapping({"feedback": {"output_torque_gain": K_O,
+                                                                    "output_torque_cutoff_hz": F_O}}))
+    assert rep.ok and rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0
+    for bad in ({"output_torque_gain": 6.0, "output_torque_cutoff_hz": 10.0},
+                {"output_torque_gain": 12.0, "output_torque_cutoff_hz": 1.0}):
+        with pytest.raises(ConfigError, match="controller.feedback"):
+            check_margins(ControllerConfig.from_mapping({"feedback": bad}))
+    with pytest.raises(ConfigError, match="output_torque_gain"):
+        ControllerConfig.from_mapping({"feedback": {"output_torque_gain": 2.0, "rest_gate_cutoff_hz": 0.0}})
+    with pytest.raises(ConfigError, match="output_torque_gain"):
+        ControllerConfig.from_mapping({"feedback": {"output_torque_gain": -1.0}})
+    with pytest.raises(ConfigError, match="output_torque_cutoff_hz"):
+        ControllerConfig.from_mapping({"feedback": {"output_torque_cutoff_hz": 0.0}})
+
+
+def _slip_plant(p: PlantPoint, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-mass slip plant (q_m, dq_m, q_o, dq_o) with inputs (motor torque, torque on the link),
+    ZOH-discretised."""
+    K, J, B = p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.motor_damping_Nms_rad
+    Jl, bl, kg = p.link_inertia_kg_m2, p.link_damping_Nms_rad, p.link_stiffness_Nm_rad
+    a = np.array([[0.0, 1.0, 0.0, 0.0], [-K / J, -B / J, K / J, 0.0],
+                  [0.0, 0.0, 0.0, 1.0], [K / Jl, 0.0, -(K + kg) / Jl, -bl / Jl]])
+    b = np.array([[0.0, 0.0], [1.0 / J, 0.0], [0.0, 0.0], [0.0, 1.0 / Jl]])
+    c = np.array([[K, 0.0, -K, 0.0]])
+    ad, bd, _, _, _ = signal.cont2discrete((a, b, c, np.zeros((1, 2))), dt, method="zoh")
+    return ad, bd, c[0]
+
+
+def _run_slip(cfg: ControllerConfig, p: PlantPoint, n: int, tau_link: np.ndarray | None = None,
+              kick_rad_s: float = 1e-2) -> np.ndarray:
+    """The compiled step closed on the slip plant with both load-cell pairs fed (the cable torque
+    at the input and, in slip, at the output), the IMU every 2.5 cycles, a 2-cycle command FIFO, a
+    velocity kick at cycle 10 and ``tau_link`` on the link. Returns the states per cycle."""
+    a, b, c = _slip_plant(p, cfg.dt_s)
+    x = np.zeros(4)
+    ctl = Controller(cfg)
+    r = ctl.record[0]
+    fifo = [0.0, 0.0]
+    out = np.zeros((n, 4))
+    next_imu = 0.0
+    for k in range(n):
+        if k == 10:
+            x[1] += kick_rad_s
+            x[3] += kick_rad_s
+        tau = float(c @ x)
+        _feed(r, k, cfg.dt_s)
+        r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
+        r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
+        r["dq_m_rad_s"] = x[1]
+        r["imu_new"] = 0
+        if k >= next_imu:
+            r["imu_new"] = 1
+            r["dq_out_rad_s"], r["q_out_rad"] = x[3], x[2]
+            next_imu += 2.5
+        fifo.append(ctl.step())
+        x = a @ x + b @ np.array([fifo.pop(0), 0.0 if tau_link is None else tau_link[k]])
+        out[k] = x
+    return out
+
+
+@pytest.mark.parametrize("p", SLIP_POINTS, ids=["K200-J-30", "K300-J+30", "K300-J-30"])
+def test_decays_at_the_slip_points_in_the_compiled_step(p):
+    """At the slip points (free link: the path is in the loop there) the analysis finds the loop
+    stable, and the compiled step closed on the plant with the output load cells fed decays after a
+    kick: a free link does not run away or ring."""
+    cfg = _linear(LINEAR)
+    assert float(np.max(np.abs(closed_loop_poles(cfg, p, 2)))) < 1.0
+    v = _run_slip(cfg, p, 15000)[:, 1]
+    assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
+
+
+def test_the_link_feels_less_of_the_motor():
+    """A 1 Hz torque on the free link (slip, K_c 240, J_m 0.73): the inertia it feels,
+    |tau| / |link acceleration|, is between the link's own (J_l with its residual gravity stiffness
+    and damping: the limit of an ideal output torque loop, which makes tau_out = tau_g) and what it
+    feels without the gain; the motor's share (J_felt - the link's) is at least 3x smaller with k_o 2 (the ideal output loop: 1 + k_o)."""
+    p = PlantPoint(240.0, 0.73, 0.5, slip=True, link_stiffness_Nm_rad=0.945)
+    n, f = 16000, 1.0
+    t = np.arange(n) * 1e-3
+    tau = 0.5 * np.sin(2 * np.pi * f * t)
+
+    def felt(k_o: float) -> float:
+        cfg = _linear({**LINEAR, "output_torque_gain": k_o})
+        x = _run_slip(cfg, p, n, tau, kick_rad_s=0.0)
+        acc = np.gradient(x[:, 3], 1e-3)
+        w = slice(6000, n)          # the last 10 periods
+        ref = np.exp(-2j * np.pi * f * t[w])
+        return abs(np.sum(tau[w] * ref)) / abs(np.sum(acc[w] * ref))
+
+    j0, j6 = felt(0.0), felt(K_O)      # 0.273 and 0.185 kg m^2 against 0.146 (k_o 6 at 3 Hz: 0.163)
+    w = 2 * np.pi * f       # the link alone: |-J_l w^2 + j b_l w + k_g| / w^2 (k_g the residual gravity stiffness)
+    jl = abs(-p.link_inertia_kg_m2 * w ** 2 + 1j * p.link_damping_Nms_rad * w + p.link_stiffness_Nm_rad) / w ** 2
+    assert jl < j6 < j0
+    assert (j6 - jl) < (j0 - jl) / 3.0
+
+
+def test_nothing_at_rest():
+    """At rest (gyro noise inside the rest band, load-cell noise on all four cells) the fade keeps
+    the term off the command: bit-identical to k_o 0."""
+    def run(k_o: float) -> np.ndarray:
+        ctl = Controller(ControllerConfig.from_mapping({"feedback": {"output_torque_gain": k_o}}))
+        r = ctl.record[0]
+        rng = np.random.default_rng(11)
+        out = np.zeros(3000)
+        for k in range(3000):
+            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+            r["T_up_in_N"], r["T_lo_in_N"], r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + rng.normal(0, 0.3, 4)
+            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+            r["q_out_rad"] = 0.3
+            r["dq_out_rad_s"] = rng.normal(0.0, 2e-3)
+            out[k] = ctl.step()
+        return out
+    assert np.array_equal(run(K_O), run(0.0))
+
+
+def _grip_point(k_h: float, b_h: float, k_c: float, j_m: float) -> PlantPoint:
+    """A slip point with a hand holding the link: its stiffness and damping add to the link's."""
+    return PlantPoint(k_c, j_m, 0.5, slip=True, link_inertia_kg_m2=0.17, link_damping_Nms_rad=0.02 + b_h,
+                      link_stiffness_Nm_rad=0.945 + k_h)
+
+
+def test_a_firm_grip_in_the_analysis():
+    """A hand holding the link closes a loop through its impedance that the free-link grid does not
+    have. The loop model with the grip as link stiffness / damping: the shipped k_o 2 at 10 Hz keeps
+    every point stable with PM >= 30 deg up to 1000 Nm/rad at 3 Nm s/rad; k_o 6 low-passed at 3 Hz (which
+    meets the free-link grid) is unstable with a 300 Nm/rad grip (near 5 Hz), and the start-up check's
+    grip points (``stability.grip_stiffness_Nm_rad``) refuse it, naming the grip; without them it passes."""
+    from capstan.controller.law.stability import analyse_point, feedforward_noise_slope
+    ship = ControllerConfig.from_mapping({})
+    assert check_margins(ship).grip_ok and len(check_margins(ship).grip) == 12
+    hot = ControllerConfig.from_mapping({"feedback": {"output_torque_gain": 6.0, "output_torque_cutoff_hz": 3.0}})
+    with pytest.raises(ConfigError, match="hand holding the link"):
+        check_margins(hot)
+    assert check_margins(ControllerConfig.from_mapping({"feedback": {"output_torque_gain": 6.0, "output_torque_cutoff_hz": 3.0},
+                                                        "stability": {"grip_stiffness_Nm_rad": []}})).ok
+    with pytest.raises(ConfigError, match="grip_stiffness_Nm_rad"):
+        ControllerConfig.from_mapping({"stability": {"grip_stiffness_Nm_rad": [60.0, -1.0]}})
+    slope = feedforward_noise_slope(ship, ship.stability.gyro_noise_rad_s)
+    for k_h in (60.0, 300.0, 1000.0):
+        for k_c in (200.0, 300.0):
+            for j_m in (0.511, 0.949):
+                r = analyse_point(ship, ship.stability, _grip_point(k_h, 3.0, k_c, j_m), slope)
+                assert r.stable and r.phase_margin_deg >= 30.0, (k_h, k_c, j_m, r.phase_margin_deg)
+    r = [analyse_point(hot, hot.stability, _grip_point(300.0, 3.0, k_c, j_m), slope)
+         for k_c in (200.0, 250.0, 300.0) for j_m in (0.511, 0.73, 0.949)]
+    bad = [p for p in r if not p.stable]
+    assert bad and all(3.0 < p.dominant_pole_hz < 8.0 for p in bad)
+
+
+def test_a_firm_grip_on_the_distributed_rig():
+    """The same on what the analysis did not write: the 10-node distributed rig, fast strokes, a hand
+    of 300 Nm/rad and 3 Nm s/rad, sensor noise, IMU 400 Hz, 2-cycle delay, 8 s. k_o 6 at 3 Hz shakes
+    (the command swings by several Nm at 4-6 Hz and the hand feels more than without the gain); the
+    shipped gain stays quiet and the hand feels less than without it."""
+    import dataclasses
+    from capstan.models.plant.config import plant_from_mapping
+    from capstan.models.plant.rig import SensorNoise, SimulatedRig
+    from capstan.tools.experiments.interaction import CONDITIONS, LockStep, controller_mapping, plant_mapping
+    cond = CONDITIONS["fast_low_bending"]
+    hand = dataclasses.replace(cond.human, stiffness_Nm_rad=300.0, damping_Nms_rad=3.0)
+
+    def run(fb: dict) -> tuple[float, float, float]:
+        rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), SensorNoise(), seed=0)
+        ctl = Controller(ControllerConfig.from_mapping(controller_mapping(cond, "shipped", True, extra={"feedback": fb})))
+        ls = LockStep(ctl, rig, 2)
+        n = 8000
+        th, cmd = np.zeros(n), np.zeros(n)
+        for k in range(n):
+            th[k] = hand.torque_Nm(rig.t_s, rig.model.q_out_rad, rig.model.dq_out_rad_s)
+            cmd[k] = ls.cycle(th[k])
+            if ctl.faulted:
+                return math.inf, math.inf, math.nan
+        c = cmd[500:] - np.mean(cmd[500:])
+        p = np.abs(np.fft.rfft(c)) ** 2
+        f = np.fft.rfftfreq(len(c), 1e-3)
+        return float(np.mean(np.abs(th[500:]))), float(np.std(cmd[500:])), float(f[np.argmax(p)])
+
+    off, ship, hot = run({"output_torque_gain": 0.0}), run({}), run({"output_torque_gain": 6.0,
+                                                                      "output_torque_cutoff_hz": 3.0})
+    assert hot[0] > off[0] and hot[1] > 3.0 * off[1] and (math.isnan(hot[2]) or 4.0 < hot[2] < 6.0)
+    assert ship[0] < off[0] and ship[1] < 1.5 * off[1]
