@@ -55,6 +55,7 @@ from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
+from capstan.models.transmission.hardening import simulate_unit_hardening
 from capstan.models.transmission.stick_slip import simulate_unit
 from capstan.models.transmission.unit_plausibility import plausibility, split_by_uncertainty
 
@@ -224,12 +225,16 @@ class Mods:
     :ivar drive_Nm: per-sample torque added to the torque balance's drive [Nm], or None.
     :ivar c2_Nms2_rad2: drag ``c2 v |v|`` at speed.
     :ivar lag_s: the target measured this late (negative: the driving channels late) [s].
+    :ivar c_node_1_rad2: strain hardening of the unit's cable paths ``K e (1 + c_node e^2)``
+        [1/rad^2] (:mod:`capstan.models.transmission.hardening`; not in the TESTBED form,
+        whose unit has no cable path).
     """
 
     cap_scale: np.ndarray | None = None
     drive_Nm: np.ndarray | None = None
     c2_Nms2_rad2: float = 0.0
     lag_s: float = 0.0
+    c_node_1_rad2: float = 0.0
 
 
 def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
@@ -276,19 +281,43 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
     nr = starts.shape[0] - 1
     c0_r = np.broadcast_to(np.asarray(c0, dtype=np.float64), (nr,)).copy()
     kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
-    done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
-                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
-                         float(mods.c2_Nms2_rad2), float(dahl_exp))
+    ch = float(mods.c_node_1_rad2)
+    if ch == 0.0:
+        done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
+                             c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
+                             float(mods.c2_Nms2_rad2), float(dahl_exp))
+    else:
+        if form == DrivingForm.TESTBED:
+            raise ModelError("strain hardening acts on the cable's elastic path, which the TESTBED form's unit does "
+                             "not have (tau_in drives the environment through the friction state)")
+        if not ch > 0.0:
+            raise ModelError(f"strain hardening c_node_1_rad2 must be >= 0 (a stiffening cable), got {ch}")
+        assert sig.q_in_rad is not None
+        if form in _INPUT_PREDICTED:
+            K1, A1, K2, A2 = float(K), sig.q_in_rad, 0.0, np.empty(0)
+        else:
+            K1, A1, K2, A2 = float(Kh), sig.q_in_rad, float(Kh), rho * sig.q_out_rad
+        done = simulate_unit_hardening(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts,
+                                       np.asarray(x0, np.float64), c0_r, kx_r, float(kp), float(tfc), float(zs),
+                                       float(eta), float(bv), x, v, fr, cap, float(mods.c2_Nms2_rad2),
+                                       float(dahl_exp), ch, K1, np.ascontiguousarray(A1, dtype=np.float64), K2,
+                                       np.ascontiguousarray(A2, dtype=np.float64))
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
     if form in _INPUT_PREDICTED:
-        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + d_in * (dq_in - v) + c_in, None)
+        e = sig.q_in_rad - x
+        out: tuple[np.ndarray, np.ndarray | None] = (K * e * (1.0 + ch * e * e) + d_in * (dq_in - v) + c_in
+                                                     if ch != 0.0 else K * e + d_in * (dq_in - v) + c_in, None)
     elif form == DrivingForm.TESTBED:
         out = (kout * x + bout * v + c_out, None)
     else:
         assert sig.q_in_rad is not None
-        out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        if ch == 0.0:
+            out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        else:
+            e1, e2 = sig.q_in_rad - x, x - rho * sig.q_out_rad
+            out = (rho * Kh * e2 * (1.0 + ch * e2 * e2) + c_out, Kh * e1 * (1.0 + ch * e1 * e1) + c_in)
     if mods.lag_s != 0.0:
         out = (shift_within_runs(out[0], sig, mods.lag_s),
                None if out[1] is None else shift_within_runs(out[1], sig, mods.lag_s))

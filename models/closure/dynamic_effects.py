@@ -10,6 +10,8 @@ pretension_relaxation  time          capacity x (1 + D (1 - exp(-t_run / tau_r))
 load_friction          load          capacity x (1 + CL |tau_in| / tau_ref)
 speed_viscous          velocity      drag C2 v |v| in the slip law
 sensor_latency         latency       the target measured lag late (lag < 0: the drive late)
+strain_stiffening      deflection    the cable paths K e (1 + c_node e^2), c_node = h / e_ref^2 >= 0
+                                     (not in the testbed form: its unit has no cable path)
 empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): piecewise-linear
                                      curves over knots at the training quantiles of x
 empirical:direction    velocity      capacity x (1 + d tanh(dq_out / 2 v_rest)): a friction
@@ -19,6 +21,14 @@ empirical:q_in         q_in          drive x (1 + e(q_in)), e piecewise linear o
                                      pulley's angle with its training mean removed (testbed
                                      form: the drive is rho tau_in)
 =====================  ============  ===================================================
+
+``strain_stiffening`` is the cable stiffening with strain, at the one-node level
+(:mod:`capstan.models.transmission.hardening`: what the distributed model's cubic cable maps to,
+``c_node = 4 c r^2 / (1 + 3 c D0^2)``). Its coefficient ``h`` is the secant stiffness's rise at
+the reference stretch ``e_ref`` (the 95th percentile of the target over the elastic path's
+stiffness), bounded to ``[0, H_MAX]``: a stiffening cable (``h = 0`` is the linear unit). It reads
+no measured channel (the stretch is the simulation's own state), so the exclusion of the measured
+``deflection`` as a second sensor of the target does not apply to it.
 
 ``empirical:q_in`` describes what no catalogued form has: a transmitted drive torque that
 varies with the input pulley's angle (an eccentric or out-of-round pulley, a radius that
@@ -64,6 +74,10 @@ DWELL_GRID = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.5, 3.0) for s0 in 
 #: an empirical acceleration curve was then selected for what the wrong shape left)
 DWELL_GRID_FINE = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.25, 0.5, 1.0, 2.0, 4.0)
                         for s0 in (0.005, 0.01, 0.02, 0.04, 0.08))
+
+#: upper bound of the stiffening candidate's h (secant +200 %, tangent +600 % at e_ref: beyond
+#: any cable; a fit there is reported as at its bound)
+H_MAX = 2.0
 
 ModsFn = Callable[[Signals, dict, np.ndarray], Mods]
 
@@ -115,6 +129,8 @@ class Refs:
     q_span_rad: float
     tau_ref_Nm: float
     drive_scale_Nm: float
+    #: reference stretch of the unit's cable path [rad] (NaN: the form has none, no stiffening candidate)
+    stretch_ref_rad: float = math.nan
 
 
 def _run_time(sig: Signals) -> np.ndarray:
@@ -135,6 +151,7 @@ def _merge(ms: list[Mods], n: int) -> Mods:
             drive = drive + m.drive_Nm
         out.c2_Nms2_rad2 += m.c2_Nms2_rad2
         out.lag_s += m.lag_s
+        out.c_node_1_rad2 += m.c_node_1_rad2
     out.cap_scale, out.drive_Nm = cap, drive
     return out
 
@@ -177,6 +194,12 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
                       tuple({"lag_s": sg * m / 1000.0} for m in LAGS_MS for sg in (1, -1)), latency),
     ]
     out = [e for e in out if not any(d in excluded for d in e.depends_on)]
+    if math.isfinite(refs.stretch_ref_rad) and refs.stretch_ref_rad > 0.0:
+        def stiffening(s: Signals, sh: dict, c: np.ndarray) -> Mods:
+            return Mods(c_node_1_rad2=float(c[0]) / refs.stretch_ref_rad ** 2)
+
+        # reads no measured channel (module docstring): never excluded
+        out.append(InModelEffect("strain_stiffening", ("deflection",), ("h",), (0.0,), (H_MAX,), ({},), stiffening))
     for name in empirical:
         x = train.signal(name)
         if name in excluded or x is None or name == "deflection":

@@ -1,0 +1,150 @@
+"""The torsional unit with strain-hardening cable paths (models/transmission/hardening.py)
+against physics:
+
+* the limiting case ``c_node = 0`` is the linear unit, bit for bit;
+* the static torque-stretch curve of the hardening spring ``K e (1 + c e^2) = L`` (the root
+  of the cubic, numpy's companion-matrix solver), with friction (the node held until the load
+  exceeds the capacity) and without;
+* the two-path (two-angle) unit's torque at the closed form of two equal springs in series;
+* the implicit step stays stable at a stiffness far beyond what explicit Euler survives;
+* the one-node mapping ``c_node = 4 c r^2 / (1 + 3 c D0^2)`` against the *distributed*
+  model's own cubic cable (written independently of this unit): a frictionless pull-pull
+  pair ramped slowly, its torque-deflection curve against the pair's exact law.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from capstan.models.distributed.model import BoundaryParams, DistributedModel, TransmissionParams
+from capstan.models.transmission.hardening import hardening_torque_Nm, simulate_unit_hardening
+from capstan.models.transmission.stick_slip import capacity_Nm, simulate_unit
+
+K = 500.0          # elastic path stiffness [Nm/rad]
+C_NODE = 2000.0    # hardening [1/rad^2]: +60 % tangent stiffness at 10 mrad
+
+
+def _static_stretch(load_Nm: float, K_Nm_rad: float, c: float) -> float:
+    """The real root of ``K c e^3 + K e - L = 0`` (monotone: exactly one)."""
+    r = np.roots([K_Nm_rad * c, 0.0, K_Nm_rad, -load_Nm])
+    real = r[np.abs(r.imag) < 1e-9].real
+    assert real.size == 1
+    return float(real[0])
+
+
+def _run(t: np.ndarray, a: np.ndarray, anchor: np.ndarray, c_node: float, tau_fc: float = 0.0, c0: float = 0.5,
+         kx: float = K, anchor2: np.ndarray | None = None, K2: float = 0.0, dahl_exp: float = 1.0,
+         cap: np.ndarray | None = None) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    n = t.size
+    x, v, f = np.empty(n), np.empty(n), np.empty(n)
+    done = simulate_unit_hardening(t, a, np.array([0, n]), np.array([0.0]), np.array([c0]), np.array([kx]), 5e4,
+                                   tau_fc, 1.3, 0.05, 0.01, x, v, f, np.empty(0) if cap is None else cap, 0.0,
+                                   dahl_exp, c_node, K, anchor, K2, np.empty(0) if anchor2 is None else anchor2)
+    return done, x, v, f
+
+
+@pytest.mark.parametrize("dahl_exp", [1.0, 2.0])
+def test_zero_hardening_is_the_linear_unit_bit_for_bit(dahl_exp: float) -> None:
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 4.0, 1e-3)
+    q = 0.01 * np.sin(2 * np.pi * 0.7 * t) + 2e-3 * np.sin(2 * np.pi * 3.1 * t)
+    load = 1.5 * np.sin(2 * np.pi * 0.3 * t)
+    a = K * q - load
+    cap = 1.0 + 0.3 * rng.random(t.size)
+    done, x, v, f = _run(t, a, q, 0.0, tau_fc=0.8, dahl_exp=dahl_exp, cap=cap)
+    xl, vl, fl = np.empty(t.size), np.empty(t.size), np.empty(t.size)
+    assert simulate_unit(t, a, np.array([0, t.size]), np.array([0.0]), np.array([0.5]), np.array([K]), 5e4, 0.8,
+                         1.3, 0.05, 0.01, xl, vl, fl, cap, 0.0, dahl_exp) == t.size
+    assert done == t.size
+    assert np.array_equal(x, xl) and np.array_equal(v, vl) and np.array_equal(f, fl)
+
+
+@pytest.mark.parametrize("load_Nm", [-6.0, -0.7, 0.3, 2.0, 5.0, 9.0])
+def test_static_curve_is_the_hardening_spring_root(load_Nm: float) -> None:
+    # anchor fixed at 0, a constant load L on the node: K e (1 + c e^2) = L at rest, e = -x
+    t = np.arange(0.0, 2.0, 1e-3)
+    a = np.full(t.size, -load_Nm)
+    done, x, v, _ = _run(t, a, np.zeros(t.size), C_NODE)
+    assert done == t.size
+    e = -x[-1]
+    assert abs(v[-1]) < 1e-9
+    assert e == pytest.approx(_static_stretch(load_Nm, K, C_NODE), rel=1e-8)
+    assert hardening_torque_Nm(K, C_NODE, e) == pytest.approx(load_Nm, rel=1e-8)
+    # and the linear spring's stretch is larger by the hardening's share (physics, not the code)
+    assert abs(e) < abs(load_Nm) / K
+
+
+def test_static_curve_with_friction_holds_until_the_capacity() -> None:
+    # a slow load ramp 0 -> 6 Nm on a node with capacity 1 Nm (zeta_s 1.3): at rest the path
+    # carries L - f with |f| <= capacity; the stretch sits on the hardening curve of that torque
+    t = np.arange(0.0, 6.0, 1e-3)
+    load = t.copy()
+    done, x, v, f = _run(t, -load, np.zeros(t.size), C_NODE, tau_fc=1.0, c0=0.05)
+    assert done == t.size
+    e = -x
+    carried = hardening_torque_Nm(K, C_NODE, e)
+    # torque balance at every sample: path torque = load - friction - damping (b_vis + c0)
+    assert np.max(np.abs(carried - (load + f + 0.06 * v))) < 1e-6
+    assert np.max(np.abs(f)) <= 1.3 * 1.0 + 1e-9
+    # held: friction (presliding stiffness 100 K) takes the load until it nears the capacity
+    assert np.max(np.abs(carried[load < 0.5])) < 0.02
+    # sliding: friction at the (Stribeck) capacity of the sliding speed
+    assert carried[-1] == pytest.approx(load[-1] - capacity_Nm(v[-1], 1.0, 1.3, 0.05), abs=0.01)
+
+
+def test_two_paths_in_series_give_the_closed_form() -> None:
+    # the two-angle form: node between q_in (K_h) and q_out = 0 (K_h), no friction; symmetric
+    # stretch e = theta / 2, torque K_h (theta / 2)(1 + c (theta / 2)^2)
+    t = np.arange(0.0, 10.0, 1e-3)
+    theta = 0.02 * np.sin(2 * np.pi * 0.05 * t)
+    done, x, _, _ = _run(t, K * theta, theta, C_NODE, c0=1e-3, kx=2 * K, anchor2=np.zeros(t.size), K2=K)
+    assert done == t.size
+    tau = hardening_torque_Nm(K, C_NODE, x)           # output half: stretch x - 0
+    closed = hardening_torque_Nm(K, C_NODE, theta / 2)
+    assert np.max(np.abs(tau - closed)) < 1e-4 * np.max(np.abs(closed))
+    # and it is not the linear series pair
+    assert np.max(np.abs(closed - K * theta / 2)) > 0.15 * np.max(np.abs(closed))
+
+
+def test_implicit_step_is_stable_where_explicit_euler_is_not() -> None:
+    # stiff hardening, 10 ms steps, tiny damping: explicit Euler's limit dt < c0 / K_t is
+    # exceeded a thousandfold at the peak tangent stiffness; the implicit step settles monotonically
+    t = np.arange(0.0, 1.0, 1e-2)
+    load = 20.0
+    done, x, v, _ = _run(t, np.full(t.size, -load), np.zeros(t.size), 1e6, c0=1e-3)
+    assert done == t.size and np.all(np.isfinite(x))
+    e = -x
+    assert np.all(np.diff(e) >= -1e-15)
+    assert e[-1] == pytest.approx(_static_stretch(load, K, 1e6), rel=1e-8)
+
+
+def test_negative_hardening_is_refused() -> None:
+    t = np.arange(0.0, 0.1, 1e-3)
+    assert _run(t, np.zeros(t.size), np.zeros(t.size), -1.0)[0] == 0
+
+
+def test_node_mapping_against_the_distributed_cubic_cable() -> None:
+    # frictionless pull-pull pair (mu = 0), uniform pretension T0, cable law k_c D (1 + c D^2)
+    c, T0, n = 1e5, 150.0, 6
+    trans = TransmissionParams.uniform(n, 3.0, T0, mu=0.0)
+    model = DistributedModel(trans, BoundaryParams(k_out_Nm_rad=40.0, b_out_Nms_rad=2.0))
+    model.stiffness_cubic_1_m2 = c
+    model.reset()
+    t = np.arange(0.0, 8.0, 1e-3)
+    u = 9.0 * np.sin(2 * np.pi * 0.05 * t)           # slow: quasi-static
+    res = model.simulate(t, u, adaptive=True, rtol=1e-6)
+    theta = res.q_in_rad - res.q_out_rad
+    r = 0.04
+    k_c = trans.cable_stiffness_N_m
+    D0 = _static_stretch(T0, k_c, c)                  # k_c D0 (1 + c D0^2) = T0
+    K_lin = 2.0 * r * r * k_c * (1.0 + 3.0 * c * D0 * D0)
+    c_node = 4.0 * c * r * r / (1.0 + 3.0 * c * D0 * D0)
+    # the node form: two half paths K_h = 2 K_lin, stretch theta / 2 each
+    pred = hardening_torque_Nm(2.0 * K_lin, c_node, theta / 2.0)
+    peak = float(np.max(np.abs(res.tau_out_Nm)))
+    assert np.max(np.abs(pred - res.tau_out_Nm)) < 0.01 * peak
+    # the cubic is material here (the linear pair with the raised stiffness misses it)
+    assert np.max(np.abs(K_lin * theta - res.tau_out_Nm)) > 0.03 * peak
