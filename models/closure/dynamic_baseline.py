@@ -235,18 +235,24 @@ class Mods:
     c2_Nms2_rad2: float = 0.0
     lag_s: float = 0.0
     c_node_1_rad2: float = 0.0
+    #: multiplier of the cable path's linear stiffness (K_in; K_h) -- the stiffening candidate
+    #: keeps the path's mean stiffness with it (:mod:`capstan.models.closure.dynamic_effects`)
+    k_scale: float = 1.0
 
 
 def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
              declared_env: bool, mods: Mods | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Simulate ``sig`` with parameter vector ``p`` (and effects ``mods``): (target, other torque or None)."""
     n = len(sig)
+    mods = mods or Mods()
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
     rho = sig.ratio_q
     dahl_exp = 1.0
     if form in _INPUT_PREDICTED:
         K, g, tfc, kp, zs, eta, bv, c_in, dahl_exp, d_in = p
+        if mods.k_scale != 1.0:
+            K = K * mods.k_scale
         if sig.q_in_rad is None:
             raise ModelError(f"the {form.name} form needs q_in")
         a = K * sig.q_in_rad - g * sig.tau_out_Nm
@@ -271,10 +277,11 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
         if sig.q_in_rad is None:
             raise ModelError("the ANGLES form needs q_in")
         Kh = 2.0 * Kc
+        if mods.k_scale != 1.0:
+            Kh = Kh * mods.k_scale
         a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
         x0 = a[starts[:-1]] / (2.0 * Kh)
         c0, kx = 0.0, 2.0 * Kh
-    mods = mods or Mods()
     if mods.drive_Nm is not None:
         a = a + mods.drive_Nm
     cap = np.empty(0) if mods.cap_scale is None else np.ascontiguousarray(np.maximum(mods.cap_scale, 0.0))

@@ -11,7 +11,7 @@ load_friction          load          capacity x (1 + CL |tau_in| / tau_ref)
 speed_viscous          velocity      drag C2 v |v| in the slip law
 sensor_latency         latency       the target measured lag late (lag < 0: the drive late)
 strain_stiffening      deflection    the cable paths K e (1 + c_node e^2), c_node = h / e_ref^2 >= 0
-                                     (not in the testbed form: its unit has no cable path)
+                                     (offered in the two-angle form: dynamic_closure.stretch_ref)
 empirical:<signal>     <signal>      capacity x (1 + g(x)) and drive + h(x): piecewise-linear
                                      curves over knots at the training quantiles of x
 empirical:direction    velocity      capacity x (1 + d tanh(dq_out / 2 v_rest)): a friction
@@ -26,7 +26,9 @@ empirical:q_in         q_in          drive x (1 + e(q_in)), e piecewise linear o
 (:mod:`capstan.models.transmission.hardening`: what the distributed model's cubic cable maps to,
 ``c_node = 4 c r^2 / (1 + 3 c D0^2)``). Its coefficient ``h`` is the secant stiffness's rise at
 the reference stretch ``e_ref`` (the 95th percentile of the target over the elastic path's
-stiffness), bounded to ``[0, H_MAX]``: a stiffening cable (``h = 0`` is the linear unit). It reads
+stiffness), bounded to ``[0, H_MAX]``: a stiffening cable (``h = 0`` is the linear unit); the
+path's linear stiffness is divided by ``1 + keep h`` with it (its least-squares slope kept,
+:func:`stiffening_k_scale`). It reads
 no measured channel (the stretch is the simulation's own state), so the exclusion of the measured
 ``deflection`` as a second sensor of the target does not apply to it.
 
@@ -104,6 +106,16 @@ def dwell_breakaway_excess_Nm(amp_Nm: float, tau_age_s: float, rest_s: np.ndarra
 
 
 
+def stiffening_k_scale(h: float, keep: float) -> float:
+    """The cable path's linear stiffness multiplier ``1 / (1 + keep h)`` that goes with the
+    stiffening ``h``: ``K e (1 + c e^2) / (1 + keep h)`` keeps the least-squares slope of the
+    linear path ``K e`` over the training stretches when ``keep = mean(e^4) / mean(e^2) / e_ref^2``
+    (:attr:`Refs.stretch_keep`), so a candidate scored with the baseline held is not charged for
+    the stiffness its cubic adds (measured on a hardening cable: with K held the search stays
+    at h = 0, the held-out optimum needs K 4 % lower)."""
+    return 1.0 / (1.0 + keep * h)
+
+
 @dataclass(frozen=True)
 class InModelEffect:
     """One candidate: ``mods(sig, shape, coef)`` builds its effect on the simulation."""
@@ -131,6 +143,8 @@ class Refs:
     drive_scale_Nm: float
     #: reference stretch of the unit's cable path [rad] (NaN: the form has none, no stiffening candidate)
     stretch_ref_rad: float = math.nan
+    #: the stiffening candidate's ``keep`` (:func:`stiffening_k_scale`)
+    stretch_keep: float = 0.6
 
 
 def _run_time(sig: Signals) -> np.ndarray:
@@ -152,6 +166,7 @@ def _merge(ms: list[Mods], n: int) -> Mods:
         out.c2_Nms2_rad2 += m.c2_Nms2_rad2
         out.lag_s += m.lag_s
         out.c_node_1_rad2 += m.c_node_1_rad2
+        out.k_scale *= m.k_scale
     out.cap_scale, out.drive_Nm = cap, drive
     return out
 
@@ -196,7 +211,7 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
     out = [e for e in out if not any(d in excluded for d in e.depends_on)]
     if math.isfinite(refs.stretch_ref_rad) and refs.stretch_ref_rad > 0.0:
         def stiffening(s: Signals, sh: dict, c: np.ndarray) -> Mods:
-            return Mods(c_node_1_rad2=float(c[0]) / refs.stretch_ref_rad ** 2)
+            return Mods(c_node_1_rad2=float(c[0]) / refs.stretch_ref_rad ** 2, k_scale=stiffening_k_scale(float(c[0]), refs.stretch_keep))
 
         # reads no measured channel (module docstring): never excluded
         out.append(InModelEffect("strain_stiffening", ("deflection",), ("h",), (0.0,), (H_MAX,), ({},), stiffening))
