@@ -9,7 +9,9 @@ against physics:
 * the implicit step stays stable at a stiffness far beyond what explicit Euler survives;
 * the one-node mapping ``c_node = 4 c r^2 / (1 + 3 c D0^2)`` against the *distributed*
   model's own cubic cable (written independently of this unit): a frictionless pull-pull
-  pair ramped slowly, its torque-deflection curve against the pair's exact law.
+  pair ramped slowly, its torque-deflection curve against the pair's exact law, and the
+  cables' mean tension rising with the deflection squared (the stiffening candidate's
+  friction term, ``beta``).
 """
 
 from __future__ import annotations
@@ -148,3 +150,16 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
     assert np.max(np.abs(pred - res.tau_out_Nm)) < 0.01 * peak
     # the cubic is material here (the linear pair with the raised stiffness misses it)
     assert np.max(np.abs(K_lin * theta - res.tau_out_Nm)) > 0.03 * peak
+    # the even part: both cables' mean tension rises by 3 c D0 k_c d^2 (d = r theta), which the
+    # stiffening candidate's friction term carries: T0 (1 + beta c_node e^2 / ...) with e = theta / 2,
+    # beta = 3 (1 + x) / (1 + x / 3), x = 3 c D0^2 (models/closure/dynamic_effects.py)
+    fix = res.fixture_tensions_N
+    t_mean = 0.25 * fix.sum(axis=1)
+    d = r * theta
+    rise = t_mean - T0
+    closed_rise = 3.0 * c * D0 * k_c * d * d
+    assert np.max(np.abs(rise - closed_rise)) < 0.02 * np.max(closed_rise)
+    x = 3.0 * c * D0 * D0
+    beta = 3.0 * (1.0 + x) / (1.0 + x / 3.0)
+    assert np.allclose(T0 * beta * c_node * (theta / 2.0) ** 2, closed_rise, rtol=1e-9)
+    assert 3.0 <= beta <= 9.0

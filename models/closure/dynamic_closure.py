@@ -18,8 +18,8 @@ from typing import Callable
 import numpy as np
 
 from capstan.models.closure.dynamic_baseline import DrivingForm, DynamicFit, fit_dynamic
-from capstan.models.closure.dynamic_effects import (DWELL_GRID, DWELL_GRID_FINE, H_MAX, InModelCloser, InModelEffect,
-                                                    JointFit, Refs, catalogue, stiffening_k_scale)
+from capstan.models.closure.dynamic_effects import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, H_MAX, InModelCloser,
+                                                    InModelEffect, JointFit, Refs, catalogue, stiffening_k_scale)
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.long_run_effects import SCREEN_MIN, LongRunCloser
@@ -105,7 +105,8 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
     if eff.name == "strain_stiffening":
         return {"c_node_1_rad2": float(coef[0] / refs.stretch_ref_rad ** 2), "stretch_ref_rad": refs.stretch_ref_rad,
                 "tangent_rise_at_ref": float(3.0 * coef[0]), "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep),
-                "h": float(coef[0]), "h_max": H_MAX}
+                "h": float(coef[0]), "h_max": H_MAX, "beta": float(coef[1]),
+                "beta_plausible": bool(BETA_PLAUSIBLE[0] <= coef[1] <= BETA_PLAUSIBLE[1])}
     return {}
 
 
