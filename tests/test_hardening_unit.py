@@ -163,3 +163,17 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
     beta = 3.0 * (1.0 + x) / (1.0 + x / 3.0)
     assert np.allclose(T0 * beta * c_node * (theta / 2.0) ** 2, closed_rise, rtol=1e-9)
     assert 3.0 <= beta <= 9.0
+
+
+def test_stiffening_outside_its_physical_friction_coupling_is_not_significant() -> None:
+    from capstan.models.closure.dynamic_closure import implausible
+    from capstan.models.closure.dynamic_effects import BETA_PLAUSIBLE, InModelEffect, stiffening_k_scale
+    eff = InModelEffect("strain_stiffening", ("deflection",), ("h", "beta"), (0.0, 0.0), (2.0, 12.0), ({},),
+                        lambda s, sh, c: None)     # type: ignore[arg-type, return-value]
+    assert implausible(eff, np.array([0.03, 5.0])) == ""
+    assert "beta 12" in implausible(eff, np.array([0.03, 12.0]))
+    assert "beta 1" in implausible(eff, np.array([0.03, 1.0]))
+    assert implausible(eff, np.array([0.0, 12.0])) == ""          # no stiffening: beta means nothing
+    assert BETA_PLAUSIBLE == (3.0, 9.0)
+    # the linear stiffness kept: K e (1 + c e^2) / (1 + keep h) -> K e as h -> 0
+    assert stiffening_k_scale(0.0, 0.8) == 1.0 and stiffening_k_scale(0.5, 0.8) == pytest.approx(1 / 1.4)
