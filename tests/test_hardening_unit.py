@@ -165,7 +165,7 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
     assert 3.0 <= beta <= 9.0
 
 
-def test_stiffening_outside_its_physical_friction_coupling_is_not_significant() -> None:
+def test_stiffening_outside_its_physical_friction_coupling_is_implausible() -> None:
     from capstan.models.closure.dynamic_closure import implausible
     from capstan.models.closure.dynamic_effects import BETA_PLAUSIBLE, InModelEffect, stiffening_k_scale
     eff = InModelEffect("strain_stiffening", ("deflection",), ("h", "beta"), (0.0, 0.0), (2.0, 12.0), ({},),
