@@ -167,13 +167,16 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
 
 def test_stiffening_outside_its_physical_friction_coupling_is_implausible() -> None:
     from capstan.models.closure.dynamic_closure import implausible
-    from capstan.models.closure.dynamic_effects import BETA_PLAUSIBLE, InModelEffect, stiffening_k_scale
-    eff = InModelEffect("strain_stiffening", ("deflection",), ("h", "beta"), (0.0, 0.0), (2.0, 12.0), ({},),
-                        lambda s, sh, c: None)     # type: ignore[arg-type, return-value]
-    assert implausible(eff, np.array([0.03, 5.0])) == ""
-    assert "beta 12" in implausible(eff, np.array([0.03, 12.0]))
-    assert "beta 1" in implausible(eff, np.array([0.03, 1.0]))
-    assert implausible(eff, np.array([0.0, 12.0])) == ""          # no stiffening: beta means nothing
+    from capstan.models.closure.dynamic_effects import BETA_PLAUSIBLE, InModelEffect, stiffening_beta, stiffening_k_scale
+    eff = InModelEffect("strain_stiffening", ("deflection",), ("rise", "friction_rise"), (0.0, 0.0), (3.0, 3.0),
+                        ({},), lambda s, sh, c: None)     # type: ignore[arg-type, return-value]
+    # beta = 3 friction_rise / rise: the cables' mean tension rise over the stiffness rise
+    assert stiffening_beta(0.1, 0.15) == pytest.approx(4.5)
+    assert implausible(eff, np.array([0.1, 0.15])) == ""
+    assert "beta 12" in implausible(eff, np.array([0.1, 0.4]))
+    assert "beta 0.9" in implausible(eff, np.array([0.1, 0.03]))
+    assert "no stiffening" in implausible(eff, np.array([0.0, 0.1]))   # friction alone: not this mechanism
+    assert implausible(eff, np.array([0.0, 0.0])) == ""
     assert BETA_PLAUSIBLE == (3.0, 9.0)
-    # the linear stiffness kept: K e (1 + c e^2) / (1 + keep h) -> K e as h -> 0
-    assert stiffening_k_scale(0.0, 0.8) == 1.0 and stiffening_k_scale(0.5, 0.8) == pytest.approx(1 / 1.4)
+    # the linear stiffness kept: K e (1 + c e^2) / (1 + keep rise / 3) -> K e as rise -> 0
+    assert stiffening_k_scale(0.0, 0.8) == 1.0 and stiffening_k_scale(1.5, 0.8) == pytest.approx(1 / 1.4)
