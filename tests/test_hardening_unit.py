@@ -180,3 +180,33 @@ def test_stiffening_outside_its_physical_friction_coupling_is_implausible() -> N
     assert BETA_PLAUSIBLE == (3.0, 9.0)
     # the linear stiffness kept: K e (1 + c e^2) / (1 + keep rise / 3) -> K e as rise -> 0
     assert stiffening_k_scale(0.0, 0.8) == 1.0 and stiffening_k_scale(1.5, 0.8) == pytest.approx(1 / 1.4)
+
+
+def test_hardening_in_the_closure_simulation_refuses_what_it_cannot_mean() -> None:
+    from capstan.models.closure.dynamic_baseline import DrivingForm, Mods, _predict, param_names
+    from capstan.models.closure.signals import signals_from_tables
+    from capstan.models.common.errors import ModelError
+    from capstan.models.common.measurement_table import MeasurementTable
+    t = np.arange(0.0, 1.0, 1e-3)
+    q = 0.01 * np.sin(2 * np.pi * t)
+    cols = {"t": t, "tau_in": np.sin(2 * np.pi * t), "q_out": q, "tau_out": 0.5 * q, "q_in": 1.5 * q}
+    env = signals_from_tables([MeasurementTable(cols, {"environment": {"k_out": 20.0, "b_out": 2.0}}, "env")])
+    p_tb = np.array([20.0, 2.0, 0.5, 1e4, 1.2, 0.1, 0.01, 0.0])
+    assert len(p_tb) == len(param_names(DrivingForm.TESTBED))
+    with pytest.raises(ModelError, match="TESTBED"):
+        _predict(DrivingForm.TESTBED, p_tb, env, True, Mods(c_node_1_rad2=100.0))
+    ang = signals_from_tables([MeasurementTable(cols, {"r_in": 0.04, "r_out": 0.04}, "ang")])
+    assert ang.ratio_q == 1.0
+    p_an = np.array([240.0, 0.5, 1e4, 1.2, 0.1, 0.01, 0.0, 0.0])
+    assert len(p_an) == len(param_names(DrivingForm.ANGLES))
+    with pytest.raises(ModelError, match="c_node_1_rad2 must be >= 0"):
+        _predict(DrivingForm.ANGLES, p_an, ang, False, Mods(c_node_1_rad2=-1.0))
+    # the two-angle output with hardening and no friction: the node sits half way, both torques are
+    # K_h (theta / 2)(1 + c (theta / 2)^2), theta = q_in - q_out (r_in = r_out)
+    p_free = np.array([240.0, 0.0, 1e4, 1.0, 0.1, 1e-3, 0.0, 0.0])
+    tau_out, tau_in = _predict(DrivingForm.ANGLES, p_free, ang, False, Mods(c_node_1_rad2=1e4))
+    half = 0.5 * (cols["q_in"] - cols["q_out"])
+    closed = hardening_torque_Nm(480.0, 1e4, half)
+    assert np.max(np.abs(tau_out - closed)) < 1e-3 * np.max(np.abs(closed))
+    assert tau_in is not None and np.max(np.abs(tau_in - closed)) < 1e-3 * np.max(np.abs(closed))
+    assert np.max(np.abs(closed - 480.0 * half)) > 0.05 * np.max(np.abs(closed))
