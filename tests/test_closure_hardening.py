@@ -23,6 +23,8 @@ cubic is at most ``0.148 (d / D0)^2`` of the tangent stiffness. So:
   (1 + 3 c D0^2)`` (within 25 %: the eq-23 field's D0 varies along the sheath) and ``beta`` in
   its physical range ``[3, 9]``;
   Both on the excitation seeds 1 / 2 and 3 / 4;
+* the same two cases on the long-run path (windows; the simulation restarted inside a window
+  from the node the measured tau_out sets, the friction holding it);
 * clean two-angle runs of the same pretension (seeds 1 / 2): baseline <= 0.05 Nm and nothing
   selected. (On seeds 3 / 4 the clean two-angle baseline is 0.052 Nm and pretension_relaxation is
   selected: a time-like residual of the two-angle form on 15 s runs, not this effect.)
@@ -111,6 +113,28 @@ def test_hardening_traced_to_deflection_and_cuts_heldout_error(case: str) -> Non
     _, c, T0, _, _ = CASES[case]
     assert first.params["c_node_1_rad2"] == pytest.approx(_c_node_of_the_cable(c, T0), rel=0.25)
     assert 3.0 <= first.params["beta"] <= 9.0 and first.params["beta_plausible"]
+
+
+def test_hardening_on_the_long_run_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the long-run path (baseline on windows finished on every sample, candidates screened on
+    # windows) with its thresholds lowered so that these 15 s runs take it (as test_closure_long_runs)
+    from capstan.models.closure import windows
+    monkeypatch.setattr(windows, "WARM_START_SAMPLES", 5_000)
+    monkeypatch.setattr(windows, "WINDOW_SAMPLES", 10_000)
+    monkeypatch.setattr(windows, "WINDOW_S", 5.0)
+    monkeypatch.setattr(windows, "SCREEN_SAMPLES", 10_000)
+    monkeypatch.setattr(windows, "SCREEN_WINDOW_S", 5.0)
+    for case in ("angles_clean", "angles_hardening"):
+        res = run.__wrapped__(case)            # not the cached short-path result
+        r = res.targets[Target.TAU_OUT]
+        assert res.dynamic is not None and len(res.dynamic.y_train_Nm) > windows.WARM_START_SAMPLES
+        assert r.rmse_before_Nm <= 0.05
+        if case == "angles_clean":
+            assert r.selected == [], [(c.effect, c.improvement) for c in r.selected]
+        else:
+            assert r.selected and r.selected[0].effect == "strain_stiffening"
+            assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
+            assert r.selected[0].params["c_node_1_rad2"] == pytest.approx(_c_node_of_the_cable(3e5, 80.0), rel=0.25)
 
 
 def main() -> None:

@@ -280,7 +280,10 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
         if mods.k_scale != 1.0:
             Kh = Kh * mods.k_scale
         a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
-        x0 = a[starts[:-1]] / (2.0 * Kh)
+        # the node where the output half carries the measured tau_out (the state the friction
+        # holds; a restart inside a motion, e.g. a long run's window, is not at zero friction)
+        s0 = starts[:-1]
+        x0 = rho * sig.q_out_rad[s0] + (sig.tau_out_Nm[s0] - c_out) / (rho * Kh)
         c0, kx = 0.0, 2.0 * Kh
     if mods.drive_Nm is not None:
         a = a + mods.drive_Nm
