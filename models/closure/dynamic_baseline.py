@@ -55,6 +55,7 @@ from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
+from capstan.models.transmission.hardening import simulate_unit_hardening
 from capstan.models.transmission.stick_slip import simulate_unit
 from capstan.models.transmission.unit_plausibility import plausibility, split_by_uncertainty
 
@@ -224,24 +225,34 @@ class Mods:
     :ivar drive_Nm: per-sample torque added to the torque balance's drive [Nm], or None.
     :ivar c2_Nms2_rad2: drag ``c2 v |v|`` at speed.
     :ivar lag_s: the target measured this late (negative: the driving channels late) [s].
+    :ivar c_node_1_rad2: strain hardening of the unit's cable paths ``K e (1 + c_node e^2)``
+        [1/rad^2] (:mod:`capstan.models.transmission.hardening`; not in the TESTBED form,
+        whose unit has no cable path).
     """
 
     cap_scale: np.ndarray | None = None
     drive_Nm: np.ndarray | None = None
     c2_Nms2_rad2: float = 0.0
     lag_s: float = 0.0
+    c_node_1_rad2: float = 0.0
+    #: multiplier of the cable path's linear stiffness (K_in; K_h) -- the stiffening candidate
+    #: keeps the path's mean stiffness with it (:mod:`capstan.models.closure.dynamic_effects`)
+    k_scale: float = 1.0
 
 
 def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
              declared_env: bool, mods: Mods | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Simulate ``sig`` with parameter vector ``p`` (and effects ``mods``): (target, other torque or None)."""
     n = len(sig)
+    mods = mods or Mods()
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
     rho = sig.ratio_q
     dahl_exp = 1.0
     if form in _INPUT_PREDICTED:
         K, g, tfc, kp, zs, eta, bv, c_in, dahl_exp, d_in = p
+        if mods.k_scale != 1.0:
+            K = K * mods.k_scale
         if sig.q_in_rad is None:
             raise ModelError(f"the {form.name} form needs q_in")
         a = K * sig.q_in_rad - g * sig.tau_out_Nm
@@ -266,29 +277,57 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
         if sig.q_in_rad is None:
             raise ModelError("the ANGLES form needs q_in")
         Kh = 2.0 * Kc
+        if mods.k_scale != 1.0:
+            Kh = Kh * mods.k_scale
         a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
-        x0 = a[starts[:-1]] / (2.0 * Kh)
+        # the node where the output half carries the measured tau_out (the state the friction
+        # holds; a restart inside a motion, e.g. a long run's window, is not at zero friction)
+        s0 = starts[:-1]
+        x0 = rho * sig.q_out_rad[s0] + (sig.tau_out_Nm[s0] - c_out) / (rho * Kh)
         c0, kx = 0.0, 2.0 * Kh
-    mods = mods or Mods()
     if mods.drive_Nm is not None:
         a = a + mods.drive_Nm
     cap = np.empty(0) if mods.cap_scale is None else np.ascontiguousarray(np.maximum(mods.cap_scale, 0.0))
     nr = starts.shape[0] - 1
     c0_r = np.broadcast_to(np.asarray(c0, dtype=np.float64), (nr,)).copy()
     kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
-    done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
-                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
-                         float(mods.c2_Nms2_rad2), float(dahl_exp))
+    ch = float(mods.c_node_1_rad2)
+    if ch == 0.0:
+        done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
+                             c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
+                             float(mods.c2_Nms2_rad2), float(dahl_exp))
+    else:
+        if form == DrivingForm.TESTBED:
+            raise ModelError("strain hardening acts on the cable's elastic path, which the TESTBED form's unit does "
+                             "not have (tau_in drives the environment through the friction state)")
+        if not ch > 0.0:
+            raise ModelError(f"strain hardening c_node_1_rad2 must be >= 0 (a stiffening cable), got {ch}")
+        assert sig.q_in_rad is not None
+        if form in _INPUT_PREDICTED:
+            K1, A1, K2, A2 = float(K), sig.q_in_rad, 0.0, np.empty(0)
+        else:
+            K1, A1, K2, A2 = float(Kh), sig.q_in_rad, float(Kh), rho * sig.q_out_rad
+        done = simulate_unit_hardening(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts,
+                                       np.asarray(x0, np.float64), c0_r, kx_r, float(kp), float(tfc), float(zs),
+                                       float(eta), float(bv), x, v, fr, cap, float(mods.c2_Nms2_rad2),
+                                       float(dahl_exp), ch, K1, np.ascontiguousarray(A1, dtype=np.float64), K2,
+                                       np.ascontiguousarray(A2, dtype=np.float64))
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
     if form in _INPUT_PREDICTED:
-        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + d_in * (dq_in - v) + c_in, None)
+        e = sig.q_in_rad - x
+        out: tuple[np.ndarray, np.ndarray | None] = (K * e * (1.0 + ch * e * e) + d_in * (dq_in - v) + c_in
+                                                     if ch != 0.0 else K * e + d_in * (dq_in - v) + c_in, None)
     elif form == DrivingForm.TESTBED:
         out = (kout * x + bout * v + c_out, None)
     else:
         assert sig.q_in_rad is not None
-        out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        if ch == 0.0:
+            out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        else:
+            e1, e2 = sig.q_in_rad - x, x - rho * sig.q_out_rad
+            out = (rho * Kh * e2 * (1.0 + ch * e2 * e2) + c_out, Kh * e1 * (1.0 + ch * e1 * e1) + c_in)
     if mods.lag_s != 0.0:
         out = (shift_within_runs(out[0], sig, mods.lag_s),
                None if out[1] is None else shift_within_runs(out[1], sig, mods.lag_s))
