@@ -16,7 +16,6 @@ against physics:
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -152,7 +151,7 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
     assert np.max(np.abs(K_lin * theta - res.tau_out_Nm)) > 0.03 * peak
     # the even part: both cables' mean tension rises by 3 c D0 k_c d^2 (d = r theta), which the
     # stiffening candidate's friction term carries: T0 (1 + beta c_node e^2 / ...) with e = theta / 2,
-    # beta = 3 (1 + x) / (1 + x / 3), x = 3 c D0^2 (models/closure/dynamic_effects.py)
+    # beta = 3 (1 + x) / (1 + x / 3), x = 3 c D0^2 (models/closure/dynamic/candidates.py)
     fix = res.fixture_tensions_N
     t_mean = 0.25 * fix.sum(axis=1)
     d = r * theta
@@ -166,8 +165,8 @@ def test_node_mapping_against_the_distributed_cubic_cable() -> None:
 
 
 def test_stiffening_outside_its_physical_friction_coupling_is_implausible() -> None:
-    from capstan.models.closure.dynamic_closure import implausible
-    from capstan.models.closure.dynamic_effects import BETA_PLAUSIBLE, InModelEffect, stiffening_beta, stiffening_k_scale
+    from capstan.models.closure.dynamic.closure import implausible
+    from capstan.models.closure.dynamic.candidates import BETA_PLAUSIBLE, InModelEffect, stiffening_beta, stiffening_k_scale
     eff = InModelEffect("strain_stiffening", ("deflection",), ("rise", "friction_rise"), (0.0, 0.0), (3.0, 3.0),
                         ({},), lambda s, sh, c: None)     # type: ignore[arg-type, return-value]
     # beta = 3 friction_rise / rise: the cables' mean tension rise over the stiffness rise
@@ -183,7 +182,8 @@ def test_stiffening_outside_its_physical_friction_coupling_is_implausible() -> N
 
 
 def test_hardening_in_the_closure_simulation_refuses_what_it_cannot_mean() -> None:
-    from capstan.models.closure.dynamic_baseline import DrivingForm, Mods, _predict, param_names
+    from capstan.models.closure.dynamic.baseline import Mods, _predict
+    from capstan.models.closure.dynamic.forms import DrivingForm, param_names
     from capstan.models.closure.signals import signals_from_tables
     from capstan.models.common.errors import ModelError
     from capstan.models.common.measurement_table import MeasurementTable

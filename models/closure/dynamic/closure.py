@@ -1,8 +1,8 @@
-"""The closure on the dynamic baseline (:mod:`capstan.models.closure.dynamic_baseline`).
+"""The closure on the dynamic baseline (:mod:`capstan.models.closure.dynamic.baseline`).
 
 The baseline is simulated through every sample of every run. Each candidate effect acts
 inside that simulation and is fitted jointly with the baseline's parameters
-(:mod:`capstan.models.closure.dynamic_effects`); the residual trace and the greedy
+(:mod:`capstan.models.closure.dynamic.candidates`, :mod:`.in_model`); the residual trace and the greedy
 selection run on the dynamic residual, scored on every held-out sample by the block
 bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechanisms
 (:mod:`capstan.models.closure.exclusion`) are never candidates.
@@ -17,13 +17,15 @@ from typing import Callable
 
 import numpy as np
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, DynamicFit, fit_dynamic
-from capstan.models.closure.dynamic_effects import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, RISE_MAX, InModelCloser,
-                                                    InModelEffect, JointFit, Refs, catalogue, stiffening_beta,
-                                                    stiffening_k_scale)
+from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
+
+from capstan.models.closure.dynamic.forms import DrivingForm
+from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
+from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, RISE_MAX, InModelEffect,
+                                                       Refs, catalogue, stiffening_beta, stiffening_k_scale)
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
-from capstan.models.closure.long_run_effects import SCREEN_MIN, LongRunCloser
+from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.residual_trace import hat_weights, knots_for
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
@@ -134,12 +136,12 @@ def implausible(eff: InModelEffect, coef: np.ndarray) -> str:
 
 def stretch_ref(fit: DynamicFit, y_train_Nm: np.ndarray) -> tuple[float, float]:
     """(reference stretch of the unit's cable path [rad], the stiffening's ``keep``
-    (:func:`dynamic_effects.stiffening_k_scale`)): the 99.5th percentile of the stretch estimated
+    (:func:`.candidates.stiffening_k_scale`)): the 99.5th percentile of the stretch estimated
     as the target's excursion from its median over the stiffness of the half cable ``2 K_c``, and
     ``mean(e^4) / mean(e^2) / e_ref^2`` of that estimate; NaN (no stiffening candidate) in the
     other forms. The two-angle form predicts the cable's own elastic torque, first
     order in its stiffness; the testbed form's unit has no cable path; the input-predicted forms
-    (LINK, OUTPUT_HELD) have one (the kernel supports it: :func:`dynamic_baseline._predict`) but
+    (LINK, OUTPUT_HELD) have one (the kernel supports it: :func:`.baseline._predict`) but
     are not offered the candidate: it would change the candidate set, and the round's Bonferroni
     level, of the da Vinci and HIL link closures, whose bars were verified without it."""
     if fit.spec.form != DrivingForm.ANGLES:
@@ -226,7 +228,7 @@ def _tick(ds: DynamicSetup, stage: str, t0_s: float) -> None:
 
 def gain_signals(ds: DynamicSetup, train: Signals) -> tuple[str, ...]:
     """Signals offered as a drive-gain curve: the input pulley's angle, in the testbed form
-    (tau_in drives; q_in measured but not driving) -- see :mod:`capstan.models.closure.dynamic_effects`."""
+    (tau_in drives; q_in measured but not driving) -- see :mod:`capstan.models.closure.dynamic.candidates`."""
     if ds.fit.spec.form == DrivingForm.TESTBED and train.q_in_rad is not None and "q_in" not in ds.excluded:
         return ("q_in",)
     return ()
