@@ -2,7 +2,7 @@
 output-error form): stick holds the elastic state, breakaway happens where the friction
 capacity is exceeded.
 
-Every driving form of the closure (see :mod:`capstan.models.closure.dynamic_baseline`) reduces
+Every driving form of the closure (see :mod:`capstan.models.closure.dynamic.baseline`) reduces
 to one scalar state ``x`` [rad] -- the sheath node of the torsional unit, or the output
 angle on the testbed -- whose velocity ``v`` obeys the torque balance::
 
