@@ -56,7 +56,7 @@ def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 
                     T0_N: float = 150.0, seed: int = 0, noise_Nm: float = 0.02, noise_dq: float = 1e-3,
                     dt_s: float = 1e-3, peak_Nm: float = 6.0, inject: Injection | None = None,
                     declare_env: bool = True, source: str = "dist", block: int = 50,
-                    settle_s: float = 0.2) -> tuple[MeasurementTable, dict]:
+                    settle_s: float = 0.2, cubic_1_m2: float = 0.0) -> tuple[MeasurementTable, dict]:
     """One testbed run of the distributed model with the four fixture tensions as extra
     channels (T_up_in, T_up_out, T_lo_out, T_lo_in), noise on the measured channels.
 
@@ -64,12 +64,20 @@ def distributed_run(duration_s: float = 20.0, n_nodes: int = 12, k_out: float = 
     moves at -0.3 rad/s at the first sample) first settles for ``settle_s`` holding the
     run's first drive torque, unrecorded, as a rig does before its recording starts.
 
+    ``cubic_1_m2``: a strain-hardening cable, the distributed model's cubic spring law
+    ``f = k_c D (1 + c D^2)`` (:class:`DistributedModel`), set before the run with the slack
+    lengths recomputed (:meth:`DistributedModel.reset`) so the pretension field is the same
+    as the clean run's -- only the stiffness changes, not the friction.
+
     Returns (table, truth) where truth holds the noise-free torques.
     """
     th = double_bend(n_nodes)
     tens = eq23_field(th, T0_N, T0_N * 0.9)
     trans = TransmissionParams(th, th[::-1].copy(), tens, eq23_field(th[::-1], T0_N * 0.95, T0_N), mu=MU)
     model = DistributedModel(trans, BoundaryParams(k_out_Nm_rad=k_out, b_out_Nms_rad=b_out))
+    if cubic_1_m2 != 0.0:
+        model.stiffness_cubic_1_m2 = cubic_1_m2
+        model.reset()
     t = np.arange(0.0, duration_s, dt_s)
     u = multisine(t, peak_Nm, seed)
     inj = inject or Injection()

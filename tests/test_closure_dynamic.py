@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, choose_form, fit_dynamic
+from capstan.models.closure.dynamic.baseline import fit_dynamic
+
+from capstan.models.closure.dynamic.forms import DrivingForm, choose_form
 from capstan.models.closure.signals import signals_from_tables
 from capstan.models.common.errors import ModelError
 from capstan.models.common.measurement_table import MeasurementTable

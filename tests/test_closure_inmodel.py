@@ -1,4 +1,4 @@
-"""Pieces of the in-model closure (models/closure/dynamic_effects.py, dynamic_closure.py) on
+"""Pieces of the in-model closure (models/closure/dynamic/candidates.py, in_model.py, closure.py) on
 runs of the closure's own torsional unit (the fitting code's unit tests; the evidence that
 the closure works on other model families is tests/test_closure_families.py):
 
@@ -16,9 +16,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, DynamicFit, FormSpec
-from capstan.models.closure.dynamic_closure import _refit_realigned, realigned, setup
-from capstan.models.closure.dynamic_effects import InModelCloser, JointFit, Refs, catalogue
+from capstan.models.closure.dynamic.baseline import DynamicFit
+
+from capstan.models.closure.dynamic.forms import DrivingForm, FormSpec
+from capstan.models.closure.dynamic.closure import _refit_realigned, realigned, setup
+from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
+from capstan.models.closure.dynamic.candidates import Refs, catalogue
 from capstan.models.closure.signals import signals_from_tables
 from capstan.models.common.measurement_table import MeasurementTable
 from capstan.models.transmission.stick_slip import simulate_unit

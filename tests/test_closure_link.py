@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, DynamicFit, choose_form, fit_dynamic, param_names
+from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
+
+from capstan.models.closure.dynamic.forms import DrivingForm, choose_form, param_names
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.signals import Signals, signals_from_tables
 from capstan.models.common.errors import DataFormatError, ModelError

@@ -1,7 +1,7 @@
 """The closure's path for long runs -- the baseline fitted on contiguous windows and finished
 on every sample, candidates screened on windows and scored on every held-out sample, the
 winner refitted with the baseline on every sample (models/closure/windows.py,
-long_run_effects.py, models/common/projected_lm.py) -- on runs of another model family:
+models/closure/dynamic/long_run.py, models/common/projected_lm.py) -- on runs of another model family:
 the distributed-model testbed runs of tests/test_closure_families.py (N = 12, double bend,
 eq-23 field, noise 0.02 Nm, held-out runs in another environment), with the long-run
 thresholds lowered so that these 15 s runs take that path. The bars are the short path's.

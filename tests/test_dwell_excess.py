@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from capstan.models.closure.dynamic_effects import dwell_breakaway_excess_Nm
+from capstan.models.closure.dynamic.candidates import dwell_breakaway_excess_Nm
 from capstan.models.closure.effects_runtime import effect_loss_Nm, friction_shape
 from capstan.models.transmission.stick_slip import simulate_unit
 

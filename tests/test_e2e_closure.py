@@ -30,7 +30,7 @@ from capstan.controller.law.step import N_CFG
 from hil_helpers import run_hil
 from capstan.models.common.errors import ConfigError
 from capstan.models.plant.rig import SimulatedRig
-from capstan.models.closure.dynamic_effects import dwell_breakaway_excess_Nm
+from capstan.models.closure.dynamic.candidates import dwell_breakaway_excess_Nm
 from capstan.models.closure.signals import dwell_states
 from capstan.tools.experiments.breakaway import MOVING_RAD_S, breakaways
 from capstan.tools.experiments.e2e_closure import merge_fragment, not_injected, without_effects

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, DynamicFit, choose_form, param_names
+from capstan.models.closure.dynamic.baseline import DynamicFit
+
+from capstan.models.closure.dynamic.forms import DrivingForm, choose_form, param_names
 from capstan.models.closure.signals import signals_from_tables
 from capstan.models.common.measurement_table import MeasurementTable
 from capstan.models.transmission.stick_slip import dahl_u_update, friction_update, simulate_unit

@@ -14,7 +14,9 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative
 
-from capstan.models.closure.dynamic_baseline import RESTART_GAP_S, DrivingForm, _predict, fit_dynamic
+from capstan.models.closure.dynamic.baseline import RESTART_GAP_S, _predict, fit_dynamic
+
+from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.signals import signals_from_tables
 from capstan.models.closure.windows import window_index
 from capstan.models.common.errors import ModelError

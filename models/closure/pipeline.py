@@ -32,8 +32,8 @@ from typing import Callable
 
 import numpy as np
 
-from capstan.models.closure.dynamic_closure import DynamicSetup, close_in_model
-from capstan.models.closure.dynamic_closure import setup as dyn_setup
+from capstan.models.closure.dynamic.closure import DynamicSetup, close_in_model
+from capstan.models.closure.dynamic.closure import setup as dyn_setup
 from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, TargetData, scaled_lstsq
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
 from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
@@ -190,7 +190,7 @@ def close(train: Signals, test: Signals, kind: ModelKind = ModelKind.REDUCED,
     """Run the closure (see module docstring).
 
     ``dynamic`` (default): the baseline is the reduced model simulated through every
-    sample of every run (:mod:`capstan.models.closure.dynamic_closure`), the effects are
+    sample of every run (:mod:`capstan.models.closure.dynamic.closure`), the effects are
     fitted on its residual, and signals tied to the predicted channel are excluded;
     otherwise the static friction-on-velocity regression of tau_out. The static
     regression is fitted in both cases: it is the controller's feedforward map.

@@ -48,6 +48,9 @@ class Candidate:
     held_out_samples: int = 0
     #: why the candidate was not scored on the held-out runs (long runs), else ""
     screened_out: str = ""
+    #: why its fitted coefficients are outside the mechanism's physical range (then not
+    #: significant), else ""
+    implausible: str = ""
 
     def summary(self) -> dict:
         """JSON-able summary."""
@@ -58,6 +61,8 @@ class Candidate:
             d["held_out_samples"] = self.held_out_samples
         if self.screened_out:
             d["screened_out"] = self.screened_out
+        if self.implausible:
+            d["implausible"] = self.implausible
         if self.description:
             d["description"] = self.description["text"]
         return d

@@ -6,7 +6,7 @@ long, ``WINDOW_SAMPLES`` in all), then finished on every sample from there
 (:mod:`capstan.models.common.projected_lm`); what is reported is the fit on every sample.
 Windows keep their run's id, so each run's time and dwell signals stay those of the run;
 the simulation restarts from the measured state at each window (a gap in time inside a
-run: ``dynamic_baseline.RESTART_GAP_S``), as at the start of a run.
+run: ``dynamic.baseline.RESTART_GAP_S``), as at the start of a run.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ WARM_START_SAMPLES = 100_000
 WINDOW_SAMPLES = 40_000
 #: length of one window [s]
 WINDOW_S = 10.0
-#: samples and window length of the in-model candidates' screen (long_run_effects)
+#: samples and window length of the in-model candidates' screen (dynamic.long_run)
 SCREEN_SAMPLES = 40_000
 SCREEN_WINDOW_S = 10.0
 

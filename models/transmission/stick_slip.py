@@ -2,7 +2,7 @@
 output-error form): stick holds the elastic state, breakaway happens where the friction
 capacity is exceeded.
 
-Every driving form of the closure (see :mod:`capstan.models.closure.dynamic_baseline`) reduces
+Every driving form of the closure (see :mod:`capstan.models.closure.dynamic.baseline`) reduces
 to one scalar state ``x`` [rad] -- the sheath node of the torsional unit, or the output
 angle on the testbed -- whose velocity ``v`` obeys the torque balance::
 
@@ -111,12 +111,21 @@ def friction_update(f_Nm: float, v_rad_s: float, dt_s: float, k_pre_Nm_rad: floa
 @njit(cache=True)
 def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: float, dt_s: float,
                   k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
-                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0, dahl_exp: float = 1.0) -> float:
+                  b_vis_Nms_rad: float, c2_Nms2_rad2: float = 0.0, dahl_exp: float = 1.0,
+                  h1_Nm_rad3: float = 0.0, e1_rad: float = 0.0, h2_Nm_rad3: float = 0.0,
+                  e2_rad: float = 0.0) -> float:
     """Velocity of one backward-Euler step [rad/s]: the root of
-    ``c v + f_new(v) + b_vis v + c2 v |v| = rhs`` (``f_new`` by :func:`friction_update` from
-    ``f`` with exponent ``dahl_exp``; ``c2 >= 0`` a drag growing with speed).
+    ``c v + f_new(v) + b_vis v + c2 v |v| + P(v) = rhs`` (``f_new`` by :func:`friction_update`
+    from ``f`` with exponent ``dahl_exp``; ``c2 >= 0`` a drag growing with speed).
 
-    Bracketed by ``(rhs -/+ M) / (c + b_vis)`` with ``M = max(|f|, zeta_s tau_fc)``; Newton
+    ``P(v) = sum_j h_j [e_j^3 - (e_j - dt v)^3]`` is the change over the step of the cubic
+    part of hardening springs (:mod:`capstan.models.transmission.hardening`): spring ``j``
+    pulls the node with ``K_j e (1 + c e^2)``, ``e`` its stretch towards its anchor, ``e_j``
+    at the step's start, ``h_j = c K_j >= 0`` [Nm/rad^3]; ``rhs`` includes the cubic force at
+    the step's start. ``P`` is increasing and ``P(0) = 0``, so the root is unique.
+
+    Bracketed by ``(rhs -/+ M) / (c + b_vis)`` with ``M = max(|f|, zeta_s tau_fc)`` (with
+    hardening springs, widened to contain 0: ``P`` has the sign of ``v``); Newton
     steps (derivative without the Stribeck slope) safeguarded by bisection, started at the
     previous velocity. Returns NaN if ``c + b_vis <= 0``.
     """
@@ -126,6 +135,10 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
     M = max(abs(f_Nm), zeta_s * tau_fc_Nm)
     lo = (rhs_Nm - M) / ct
     hi = (rhs_Nm + M) / ct
+    hard = h1_Nm_rad3 != 0.0 or h2_Nm_rad3 != 0.0
+    if hard:
+        lo = min(lo, 0.0)
+        hi = max(hi, 0.0)
     if hi - lo <= 0.0:
         return lo
     v = min(max(v_prev_rad_s, lo), hi)
@@ -146,13 +159,18 @@ def step_velocity(rhs_Nm: float, c_Nms_rad: float, v_prev_rad_s: float, f_Nm: fl
         else:
             fn, dfn = 0.0, 0.0
         g = ct * v + c2_Nms2_rad2 * v * abs(v) + fn - rhs_Nm
+        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v) + dfn
+        if hard:
+            s1 = e1_rad - dt_s * v
+            s2 = e2_rad - dt_s * v
+            g += h1_Nm_rad3 * (e1_rad ** 3 - s1 ** 3) + h2_Nm_rad3 * (e2_rad ** 3 - s2 ** 3)
+            dg += 3.0 * dt_s * (h1_Nm_rad3 * s1 * s1 + h2_Nm_rad3 * s2 * s2)
         if abs(g) <= 1e-10 * scale:
             return v
         if g < 0.0:
             lo = v
         else:
             hi = v
-        dg = ct + 2.0 * c2_Nms2_rad2 * abs(v) + dfn
         v_new = v - g / dg if dg > 0.0 else 0.5 * (lo + hi)
         if not (lo < v_new < hi):
             v_new = 0.5 * (lo + hi)

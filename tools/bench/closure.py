@@ -32,7 +32,9 @@ from typing import Sequence
 
 import numpy as np
 
-from capstan.models.closure.dynamic_baseline import DrivingForm, _predict
+from capstan.models.closure.dynamic.baseline import _predict
+
+from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.pipeline import close, split_single
 from capstan.models.closure.signals import signals_from_tables
 from capstan.models.common.measurement_table import MeasurementTable

@@ -51,7 +51,7 @@ import yaml
 
 from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import CapstanError
-from capstan.models.closure.dynamic_effects import dwell_breakaway_excess_Nm
+from capstan.models.closure.dynamic.candidates import dwell_breakaway_excess_Nm
 from capstan.tools.experiments.breakaway import MOVING_RAD_S, breakaways
 from capstan.tools.offline.run_inputs import load_run
 from capstan.tools.offline.shipped import config_path

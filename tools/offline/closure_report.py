@@ -12,7 +12,7 @@ import numpy as np
 import yaml
 
 from capstan.models.closure.pipeline import Candidate, ClosureResult
-from capstan.models.closure.dynamic_closure import skill
+from capstan.models.closure.dynamic.closure import skill
 from capstan.models.closure.effects import Target
 from capstan.models.closure.effects_runtime import EffectCode, signal_code
 from capstan.models.closure.residual_trace import is_empirical

@@ -8,31 +8,7 @@ averaged pretension, so their two torsional units (one per cable, stiffness ``K_
 referred to the joint, capacity ``tau_fc / 2`` each) move together and are simulated as
 one unit of stiffness ``2 K_c`` per side and capacity ``tau_fc``.
 
-Driving forms (:class:`DrivingForm`), chosen from the channels a run carries
-(:func:`choose_form`) and stated in the report:
-
-``OUTPUT_HELD`` -- the output is held at a (per-run) constant torque (std of tau_out
-    below ``HELD_FRACTION`` of tau_in's): q_in and tau_out drive, tau_in is predicted.
-    ``K_in (q_in - x) - g tau_out = f``; ``tau_in = K_in (q_in - x) + c_in``.
-``TESTBED`` -- tau_in drives the declared environment ``tau_out = k_out q + b_out dq``
-    (eq 22; fitted when no environment is declared): eq (20) with the friction state,
-    ``(b_out) v + f = rho tau_in - k_out x``; tau_out is predicted.
-``LINK`` -- the output is a link moved by unmeasured forces (hand, gravity; table meta
-    ``output: link``, written by the daemon's log mapping): tau_out (output load cells) and
-    q_in (motor encoder, gear-scaled) drive the unit of ``OUTPUT_HELD``; tau_in is predicted;
-    ``g = r_in / r_out`` is the pulleys' (1 / the angle ratio), not fitted. Two parameters
-    shape the stick-to-slip transition here: the friction law's exponent ``dahl_exp``
-    (:mod:`capstan.models.transmission.stick_slip`; 1 = Dahl) and a damping of the elastic
-    path ``d_in`` [Nm s/rad] (Kelvin-Voigt: ``tau_in = K_in (q_in - x) + d_in (dq_in - v) +
-    c_in``, node balance ``K_in (q_in - x) + d_in (dq_in - v) - g tau_out = f + b_vis v``;
-    dq_in by the zero-phase Savitzky-Golay derivative). After a reversal of the distributed
-    sheath tau_in rises at 2000-3000 Nm/rad (the cable up to the first gripping node), then
-    ever less steeply; one spring K_in (~600 Nm/rad) into the Dahl law breaks away 5-10 ms
-    late, which a fitted sensor latency otherwise absorbs. ``OUTPUT_HELD``: fixed at 1 / 0.
-    The link angle (IMU, ~0.5 mrad noise) does not drive: x ~500 Nm/rad it is ~0.25 Nm.
-``ANGLES`` -- both pulley angles drive the node of the unit:
-    ``K_h (q_in - x) - K_h (x - rho q_out) = f`` with ``K_h = 2 K_c``; tau_out (and tau_in)
-    are predicted; the fit uses both torques.
+Driving forms: :mod:`capstan.models.closure.dynamic.forms`.
 
 Parameters are bounded to the physical domain (``tau_fc >= 0``, stiffnesses > 0,
 ``zeta_s >= zeta_c = 1``, ``eta_s > 0``, ``b_vis >= 0``); one that ends at a bound or outside
@@ -44,22 +20,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from capstan.models.closure.dynamic.forms import (INPUT_PREDICTED, PARAM_NAMES, DrivingForm, FormSpec, choose_form,
+                                                  param_vector)
 from capstan.models.closure.effects import shift_within_runs
 from capstan.models.closure.identification import fit_elastic, sandwich_cov
 from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure.signals import Signals, derivative
 from capstan.models.closure import windows
 from capstan.models.common.errors import ModelError
+from capstan.models.transmission.hardening import simulate_unit_hardening
 from capstan.models.transmission.stick_slip import simulate_unit
 from capstan.models.transmission.unit_plausibility import plausibility, split_by_uncertainty
 
-#: the output counts as held when std(tau_out) < HELD_FRACTION * std(tau_in) (every run)
-HELD_FRACTION = 0.1
 #: Savitzky-Golay window of the input-angle derivative [s]
 VELOCITY_WINDOW_S = 0.025
 #: starting presliding travel (capacity / k_pre) as a fraction of the run's angle span
@@ -81,25 +57,6 @@ DAHL_EXP_MIN = 0.05
 DAHL_EXP_MAX = 4.0
 #: start of the elastic path's damping as a time constant d_in / K_in [s] (LINK form)
 D_IN_TAU0_S = 0.005
-
-
-class DrivingForm(IntEnum):
-    """Which measured boundary signals drive the simulation (module docstring)."""
-
-    OUTPUT_HELD = 0
-    TESTBED = 1
-    ANGLES = 2
-    LINK = 3
-
-
-@dataclass(frozen=True)
-class FormSpec:
-    """A driving form as stated in the report: the channel predicted, the driving signals."""
-
-    form: DrivingForm
-    target: str
-    driving: tuple[str, ...]
-    reason: str
 
 
 @dataclass
@@ -142,68 +99,7 @@ class DynamicFit:
 
     def predict_both(self, sig: Signals) -> tuple[np.ndarray, np.ndarray | None]:
         """(target, the other torque or None) predicted on ``sig`` [Nm]."""
-        return _predict(self.spec.form, _vector(self.spec.form, self.params), sig, self.declared_env)
-
-
-def held_output(sig: Signals) -> bool:
-    """True when every run's tau_out is constant compared with its tau_in (a held output)."""
-    for a, b in sig.segments():
-        if b - a < 2 or np.std(sig.tau_out_Nm[a:b]) >= HELD_FRACTION * max(np.std(sig.tau_in_Nm[a:b]), 1e-12):
-            return False
-    return len(sig) > 0
-
-
-def choose_form(sig: Signals) -> FormSpec:
-    """The driving form for ``sig`` (see the module docstring for the order).
-
-    :raises ModelError: if the runs carry none of the needed channel sets.
-    """
-    has_angles = sig.q_in_rad is not None
-    if held_output(sig):
-        if not has_angles:
-            raise ModelError("the output torque is held constant, so tau_in must be predicted, and that needs "
-                             "the input angle q_in (not in the runs)")
-        return FormSpec(DrivingForm.OUTPUT_HELD, "tau_in", ("q_in", "tau_out"),
-                        "tau_out is held at a constant torque per run (it carries no transmission dynamics)")
-    if sig.environment is not None:
-        return FormSpec(DrivingForm.TESTBED, "tau_out", ("tau_in", "environment"),
-                        "the runs declare the output environment tau_out = k_out q_out + b_out dq_out")
-    if sig.output_link:
-        if not has_angles:
-            raise ModelError("the runs declare a link output (output: link): its dynamics are not simulated, so the "
-                             "input angle q_in (the motor angle) must drive the input side, and the runs lack it; "
-                             "use the static baseline (--baseline static)")
-        return FormSpec(DrivingForm.LINK, "tau_in", ("q_in", "tau_out"),
-                        "the output is a link moved by unmeasured forces (hand, gravity): the measured output torque "
-                        "and the input angle drive, tau_in is predicted")
-    if has_angles:
-        return FormSpec(DrivingForm.ANGLES, "tau_out", ("q_in", "q_out"),
-                        "both pulley angles are measured and no output environment is declared")
-    return FormSpec(DrivingForm.TESTBED, "tau_out", ("tau_in", "environment (fitted)"),
-                    "no input angle and no declared environment: the environment k_out, b_out is fitted")
-
-
-_NAMES = {DrivingForm.OUTPUT_HELD: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
-                                    "offset_in_Nm", "dahl_exp", "d_in_Nms_rad"),
-          DrivingForm.TESTBED: ("k_out_Nm_rad", "b_out_Nms_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s",
-                                "b_vis_Nms_rad", "offset_out_Nm"),
-          DrivingForm.LINK: ("K_in_Nm_rad", "g_out", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
-                             "offset_in_Nm", "dahl_exp", "d_in_Nms_rad"),
-          DrivingForm.ANGLES: ("K_c_Nm_rad", "tau_fc_Nm", "k_pre_Nm_rad", "zeta_s", "eta_s_rad_s", "b_vis_Nms_rad",
-                               "offset_in_Nm", "offset_out_Nm")}
-
-
-#: forms whose unit is driven by q_in and tau_out and predicts tau_in
-_INPUT_PREDICTED = (DrivingForm.OUTPUT_HELD, DrivingForm.LINK)
-
-
-def param_names(form: DrivingForm) -> tuple[str, ...]:
-    """Names of the form's parameters, in the order of the fitted vector."""
-    return _NAMES[form]
-
-
-def _vector(form: DrivingForm, params: dict[str, float]) -> np.ndarray:
-    return np.array([params[n] for n in _NAMES[form]])
+        return _predict(self.spec.form, param_vector(self.spec.form, self.params), sig, self.declared_env)
 
 
 def _starts(sig: Signals) -> np.ndarray:
@@ -218,30 +114,40 @@ def _starts(sig: Signals) -> np.ndarray:
 
 @dataclass
 class Mods:
-    """Effects acting inside the simulation (:mod:`capstan.models.closure.dynamic_effects`).
+    """Effects acting inside the simulation (:mod:`capstan.models.closure.dynamic.candidates`).
 
     :ivar cap_scale: per-sample multiplier of the friction capacity (clipped at 0), or None.
     :ivar drive_Nm: per-sample torque added to the torque balance's drive [Nm], or None.
     :ivar c2_Nms2_rad2: drag ``c2 v |v|`` at speed.
     :ivar lag_s: the target measured this late (negative: the driving channels late) [s].
+    :ivar c_node_1_rad2: strain hardening of the unit's cable paths ``K e (1 + c_node e^2)``
+        [1/rad^2] (:mod:`capstan.models.transmission.hardening`; not in the TESTBED form,
+        whose unit has no cable path).
     """
 
     cap_scale: np.ndarray | None = None
     drive_Nm: np.ndarray | None = None
     c2_Nms2_rad2: float = 0.0
     lag_s: float = 0.0
+    c_node_1_rad2: float = 0.0
+    #: multiplier of the cable path's linear stiffness (K_in; K_h) -- the stiffening candidate
+    #: keeps the path's mean stiffness with it (:mod:`capstan.models.closure.dynamic.candidates`)
+    k_scale: float = 1.0
 
 
 def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
              declared_env: bool, mods: Mods | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Simulate ``sig`` with parameter vector ``p`` (and effects ``mods``): (target, other torque or None)."""
     n = len(sig)
+    mods = mods or Mods()
     starts = _starts(sig)
     x, v, fr = np.empty(n), np.empty(n), np.empty(n)
     rho = sig.ratio_q
     dahl_exp = 1.0
-    if form in _INPUT_PREDICTED:
+    if form in INPUT_PREDICTED:
         K, g, tfc, kp, zs, eta, bv, c_in, dahl_exp, d_in = p
+        if mods.k_scale != 1.0:
+            K = K * mods.k_scale
         if sig.q_in_rad is None:
             raise ModelError(f"the {form.name} form needs q_in")
         a = K * sig.q_in_rad - g * sig.tau_out_Nm
@@ -266,29 +172,57 @@ def _predict(form: DrivingForm, p: np.ndarray, sig: Signals,
         if sig.q_in_rad is None:
             raise ModelError("the ANGLES form needs q_in")
         Kh = 2.0 * Kc
+        if mods.k_scale != 1.0:
+            Kh = Kh * mods.k_scale
         a = Kh * (sig.q_in_rad + rho * sig.q_out_rad)
-        x0 = a[starts[:-1]] / (2.0 * Kh)
+        # the node where the output half carries the measured tau_out (the state the friction
+        # holds; a restart inside a motion, e.g. a long run's window, is not at zero friction)
+        s0 = starts[:-1]
+        x0 = rho * sig.q_out_rad[s0] + (sig.tau_out_Nm[s0] - c_out) / (rho * Kh)
         c0, kx = 0.0, 2.0 * Kh
-    mods = mods or Mods()
     if mods.drive_Nm is not None:
         a = a + mods.drive_Nm
     cap = np.empty(0) if mods.cap_scale is None else np.ascontiguousarray(np.maximum(mods.cap_scale, 0.0))
     nr = starts.shape[0] - 1
     c0_r = np.broadcast_to(np.asarray(c0, dtype=np.float64), (nr,)).copy()
     kx_r = np.broadcast_to(np.asarray(kx, dtype=np.float64), (nr,)).copy()
-    done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
-                         c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
-                         float(mods.c2_Nms2_rad2), float(dahl_exp))
+    ch = float(mods.c_node_1_rad2)
+    if ch == 0.0:
+        done = simulate_unit(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts, np.asarray(x0, np.float64),
+                             c0_r, kx_r, float(kp), float(tfc), float(zs), float(eta), float(bv), x, v, fr, cap,
+                             float(mods.c2_Nms2_rad2), float(dahl_exp))
+    else:
+        if form == DrivingForm.TESTBED:
+            raise ModelError("strain hardening acts on the cable's elastic path, which the TESTBED form's unit does "
+                             "not have (tau_in drives the environment through the friction state)")
+        if not ch > 0.0:
+            raise ModelError(f"strain hardening c_node_1_rad2 must be >= 0 (a stiffening cable), got {ch}")
+        assert sig.q_in_rad is not None
+        if form in INPUT_PREDICTED:
+            K1, A1, K2, A2 = float(K), sig.q_in_rad, 0.0, np.empty(0)
+        else:
+            K1, A1, K2, A2 = float(Kh), sig.q_in_rad, float(Kh), rho * sig.q_out_rad
+        done = simulate_unit_hardening(sig.t_s, np.ascontiguousarray(a, dtype=np.float64), starts,
+                                       np.asarray(x0, np.float64), c0_r, kx_r, float(kp), float(tfc), float(zs),
+                                       float(eta), float(bv), x, v, fr, cap, float(mods.c2_Nms2_rad2),
+                                       float(dahl_exp), ch, K1, np.ascontiguousarray(A1, dtype=np.float64), K2,
+                                       np.ascontiguousarray(A2, dtype=np.float64))
     if done != n:
         raise ModelError(f"dynamic baseline: the simulation failed at sample {done} (t = {sig.t_s[done]:.4f} s): "
                          "time not increasing or no damping/stiffness in the unit")
-    if form in _INPUT_PREDICTED:
-        out: tuple[np.ndarray, np.ndarray | None] = (K * (sig.q_in_rad - x) + d_in * (dq_in - v) + c_in, None)
+    if form in INPUT_PREDICTED:
+        e = sig.q_in_rad - x
+        out: tuple[np.ndarray, np.ndarray | None] = (K * e * (1.0 + ch * e * e) + d_in * (dq_in - v) + c_in
+                                                     if ch != 0.0 else K * e + d_in * (dq_in - v) + c_in, None)
     elif form == DrivingForm.TESTBED:
         out = (kout * x + bout * v + c_out, None)
     else:
         assert sig.q_in_rad is not None
-        out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        if ch == 0.0:
+            out = (rho * Kh * (x - rho * sig.q_out_rad) + c_out, Kh * (sig.q_in_rad - x) + c_in)
+        else:
+            e1, e2 = sig.q_in_rad - x, x - rho * sig.q_out_rad
+            out = (rho * Kh * e2 * (1.0 + ch * e2 * e2) + c_out, Kh * e1 * (1.0 + ch * e1 * e1) + c_in)
     if mods.lag_s != 0.0:
         out = (shift_within_runs(out[0], sig, mods.lag_s),
                None if out[1] is None else shift_within_runs(out[1], sig, mods.lag_s))
@@ -310,7 +244,7 @@ def input_velocity(sig: Signals) -> np.ndarray:
 
 
 def _velocity_scale(sig: Signals, form: DrivingForm) -> float:
-    if form in _INPUT_PREDICTED and sig.q_in_rad is not None:
+    if form in INPUT_PREDICTED and sig.q_in_rad is not None:
         dq = input_velocity(sig)
     else:
         dq = sig.dq_out_rad_s
@@ -325,9 +259,9 @@ def _initial(sig: Signals, spec: FormSpec, v95: float) -> tuple[np.ndarray, np.n
     form = spec.form
     rho = sig.ratio_q
     tin, tout = sig.tau_in_Nm, sig.tau_out_Nm
-    moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form not in _INPUT_PREDICTED else slice(None)
-    fixed = [False] * len(_NAMES[form])
-    if form in _INPUT_PREDICTED:
+    moving = np.abs(sig.dq_out_rad_s) > 0.2 * v95 if form not in INPUT_PREDICTED else slice(None)
+    fixed = [False] * len(PARAM_NAMES[form])
+    if form in INPUT_PREDICTED:
         assert sig.q_in_rad is not None
         B = np.column_stack([tout, np.ones(len(sig))])
         g0, c0 = np.linalg.lstsq(B, tin, rcond=None)[0]
@@ -410,7 +344,7 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
     free = np.array([not f for f in fixed])
     declared = bool(form == DrivingForm.TESTBED and fixed[0])
     y = _target(sig, spec)
-    names = _NAMES[form]
+    names = PARAM_NAMES[form]
 
     def full(pf: np.ndarray) -> np.ndarray:
         p = p0.copy()
@@ -428,7 +362,7 @@ def fit_dynamic(sig: Signals, spec: FormSpec | None = None, max_nfev: int = MAX_
     if len(sig) > (windows.WARM_START_SAMPLES if warm_start_samples is None else warm_start_samples):
         # long runs: solved on contiguous windows first, finished on every sample
         warm = fit_dynamic(sig.take(windows.window_index(sig)), spec, max_nfev, warm_start_samples=len(sig))
-        xw = np.clip(_vector(form, warm.params)[free], lo[free], hi[free])
+        xw = np.clip(param_vector(form, warm.params)[free], lo[free], hi[free])
         lm = projected_lm(resid, xw, lo[free], hi[free], scale, FINAL_ITERS, DIFF_STEP, want_jac=True,
                           final_jac=False)
         assert lm.jac is not None

@@ -1,7 +1,7 @@
 """In-model candidates on long runs (more than ``windows.WARM_START_SAMPLES`` training
 samples, e.g. an hour at 1 kHz).
 
-The search of :class:`capstan.models.closure.dynamic_effects.InModelCloser` (each shape of a
+The search of :class:`capstan.models.closure.dynamic.in_model.InModelCloser` (each shape of a
 candidate's grid by Powell's method, the baseline held: hundreds of simulations per
 candidate) costs minutes on millions of samples. On long runs instead:
 
@@ -27,8 +27,9 @@ import math
 
 import numpy as np
 
-from capstan.models.closure.dynamic_baseline import DIFF_STEP, _predict, _velocity_scale
-from capstan.models.closure.dynamic_effects import InModelCloser, InModelEffect, JointFit
+from capstan.models.closure.dynamic.baseline import DIFF_STEP, _predict, _velocity_scale
+from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
+from capstan.models.closure.dynamic.candidates import InModelEffect
 from capstan.models.closure.effects import shift_within_runs
 from capstan.models.common.projected_lm import projected_lm
 from capstan.models.closure import windows
