@@ -14,7 +14,7 @@ from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
 from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, deflection_link_filter,
                                                deflection_reference_filter)
-from test_torque_loop import OLD_LOOP, _quiet, _run_step_physical
+from test_torque_loop import OLD_LOOP, PREV_JC, _quiet, _run_step_physical
 
 #: the strongest torque feedback inside the margins (shipped: kp 0.75, b 60, link 30 Hz with its lag
 #: compensated), without the rest gate (the linear loop the analysis has)
@@ -186,7 +186,7 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     assert hl[0][0] == 0.0 and a[0][0] == 0.0          # the IMU hold's cycle, not there with the IMU every cycle
     want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
     assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
-    on = {"deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
+    on = {**PREV_JC, "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
           "output_torque_gain": 0.0,
           "band_gain": 0.0}     # the loop this was tuned on, before the band gain
     with pytest.raises(ConfigError, match="phase margin"):
@@ -201,7 +201,7 @@ def test_start_up_check_covers_the_faded_gains():
     rest (GM 5.7 dB, the free link's residual gravity mode in slip): refused, saying which fade fails."""
     from capstan.controller.law.stability import analyse, check_margins
     from capstan.models.common.errors import ConfigError
-    m = {"feedback": {"inertia_comp_kg_m2": 0.34, "deflection_link_cutoff_hz": 150.0, "output_torque_gain": 0.0,
+    m = {"feedback": {**PREV_JC, "inertia_comp_kg_m2": 0.34, "deflection_link_cutoff_hz": 150.0, "output_torque_gain": 0.0,
                       "deflection_link_lag_compensation": False}}
     rep = analyse(ControllerConfig.from_mapping(m))
     assert rep.all_stable and rep.worst_phase_margin_deg >= 45.0 and rep.worst_gain_margin_dB >= 6.0

@@ -24,8 +24,12 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the gains tuned in lock-step (no delay): kp 5, kd 0.05, Q 10 Hz
 LOCKSTEP_LDO = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0},
                 "ldo": {"q_cutoff_hz": 10.0}}
+#: J_c and the damping as shipped before the output torque gain's peak: J_c 0.2 from the link's acceleration
+#: (b 60, link rate 30 Hz, lag compensated), no peak
+PREV_JC = {"inertia_comp_kg_m2": 0.2, "acceleration_source": "link", "deflection_damping_Nms_rad": 60.0,
+           "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "output_torque_peak_gain": 0.0}
 #: the shipped feedback before the deflection-rate damping: feedforward + integral trim + J_c, kp 0
-OLD_LOOP = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0,
+OLD_LOOP = {**PREV_JC, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0,
             "output_torque_gain": 0.0}
 NO_LIMITS = {"tau_max_Nm": 1e6, "tau_fault_Nm": 1e7, "dtau_max_Nm_s": 1e9, "dtau_fault_Nm_s": 1e10,
              "command_quantum_Nm": 0.0}   # the safety stage linear: no clamps, no rounding
@@ -172,10 +176,10 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
         check_margins(bad)
     assert check_margins(ControllerConfig.from_mapping({})).ok
     shipped = ControllerConfig.from_mapping({})
-    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 60.0
+    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 80.0
     # the link's velocity at 150 Hz without the lag compensation, J_c 0.3, no band gain (tests/test_band_gain.py),
     # no output torque gain (tests/test_output_torque_gain.py)
-    plain = {"deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3,
+    plain = {**PREV_JC, "deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3,
              "band_gain": 0.0, "output_torque_gain": 0.0}
     assert check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.25,
                                                                      "deflection_damping_Nms_rad": 100.0}})).ok
@@ -308,7 +312,7 @@ def test_inertia_compensation_margins_and_its_limit():
     does not; without the gravity model (the link's full pendulum stiffness in slip) 0.2 does,
     0.3 does not; an amount at or above the lightest joint inertia is refused by name."""
     for jc, gravity, good in ((0.3, True, True), (0.34, True, False), (0.2, False, True), (0.3, False, False)):
-        cfg = ControllerConfig.from_mapping({"feedback": {"inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0,
+        cfg = ControllerConfig.from_mapping({"feedback": {**PREV_JC, "inertia_comp_kg_m2": jc, "acceleration_cutoff_hz": 5.0,
                                                           "output_torque_gain": 0.0,
                                                           "deflection_link_lag_compensation": False},
                                              "gravity": {"enabled": gravity}})
@@ -323,7 +327,7 @@ def test_inertia_compensation_margins_and_its_limit():
         ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
                                        "feedback": {"inertia_comp_kg_m2": 0.0}})
     ControllerConfig.from_mapping({"feedforward": {"enabled": False, "dead_band_rad_s": 0.0},
-                                   "feedback": {"inertia_comp_kg_m2": 0.0, **OLD_LOOP}})
+                                   "feedback": {**OLD_LOOP, "inertia_comp_kg_m2": 0.0}})
     with pytest.raises(ConfigError, match="acceleration_source"):
         ControllerConfig.from_mapping({"feedback": {"acceleration_source": "wheel"}})
 

@@ -21,17 +21,20 @@ Every key, its unit and default (``config/controller.yaml`` is the documented ex
         derivative_cutoff_hz: 40.0   # first-order filter of the derivative
         ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
         integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
-        inertia_comp_kg_m2: 0.2      # + J_c x acceleration on the command (0 = off), gated at rest
+        inertia_comp_kg_m2: 0.45     # + J_c x acceleration on the command (0 = off), gated at rest
         acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
-        acceleration_source: link    # link: IMU rate (400 Hz) | motor: drive velocity
-        deflection_damping_Nms_rad: 60.0      # - b (dq_m - link's - reference's deflection rate) (0 = off)
-        deflection_link_cutoff_hz: 30.0       # low-pass of the link's rate in it (lag compensated, below)
+        acceleration_source: motor   # link: IMU rate (400 Hz) | motor: drive velocity
+        deflection_damping_Nms_rad: 80.0      # - b (dq_m - link's - reference's deflection rate) (0 = off)
+        deflection_link_cutoff_hz: 80.0       # low-pass of the link's rate in it
         deflection_reference_cutoff_hz: 2.0   # ... of tau_in_des (less gravity) before its rate
         rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
-        deflection_link_lag_compensation: true  # + its lag x the link's acceleration (the link's, whatever the source)
+        deflection_link_lag_compensation: false  # + its lag x the link's acceleration (the link's, whatever the source)
         band_gain: 2.5               # + band_gain x BP[e], BP band_low_hz 0.3 - band_high_hz 2.0 Hz (faded like kp)
         output_torque_gain: 2.0      # + gain x LP[e_out] on the output torque reference (output load cells, faded
         output_torque_cutoff_hz: 10.0  # like kp), LP at this cutoff
+        output_torque_peak_gain: 1.0   # x (1 + gain x BP) on it, BP a unit-gain band-pass peak at
+        output_torque_peak_hz: 1.5     # this frequency (the fast strokes' swing on the hand) with
+        output_torque_peak_q: 1.5      # this quality (0 gain = off)
       filters:
         tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
         q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,

@@ -23,7 +23,7 @@ from capstan.controller.law.config import AccelerationSource, ControllerConfig, 
 from capstan.controller.law.feedforward import friction_torque_per_N
 from capstan.controller.law.learned_effects import pack_block
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
-                                        q_filter_coefficients, qpinv_filter_coefficients)
+                                        output_peak_biquad, q_filter_coefficients, qpinv_filter_coefficients)
 from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.records import FaultBits, new_record
 from capstan.controller.law import step as _s
@@ -57,6 +57,9 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_OUT_GAIN] = fb.output_torque_gain
     c[_s.C_OUT_ALPHA] = lowpass_alpha(fb.output_torque_cutoff_hz, dt)
     c[_s.C_R_OUT] = p.r_out_m
+    c[_s.C_OUT_PEAK_ON] = 1.0 if fb.output_torque_peak_gain > 0.0 else 0.0
+    c[_s.C_OUT_PEAK:_s.C_OUT_PEAK + 5] = output_peak_biquad(fb.output_torque_peak_gain, fb.output_torque_peak_hz,
+                                                            fb.output_torque_peak_q, dt)
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0

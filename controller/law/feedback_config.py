@@ -36,9 +36,9 @@ class FeedbackGains:
     #: acceleration and with ``rest_gate_cutoff_hz`` > 0 it is also faded in and out with kp and the
     #: deflection damping (without that damping the loop with it rings the stick mode: it acts as a
     #: smaller motor inertia, which moves the deflection modes up)
-    inertia_comp_kg_m2: float = 0.2
+    inertia_comp_kg_m2: float = 0.45
     acceleration_cutoff_hz: float = 5.0
-    acceleration_source: AccelerationSource = AccelerationSource.LINK
+    acceleration_source: AccelerationSource = AccelerationSource.MOTOR
     #: damping of the transmission's deflection rate [Nm s/rad] (0 = off):
     #: ``- deflection_damping_Nms_rad * (dq_m - (r_out/r_in) LP[g dq_out])`` on the command, dq_m the
     #: drive's motor velocity (every cycle), dq_out the IMU rate (per sample, held) low-passed at
@@ -48,8 +48,8 @@ class FeedbackGains:
     #: The deflection the torque reference asks for is not braked: its rate
     #: ``d/dt LP[tau_in_des - gravity] / plant.stiffness_Nm_rad`` (low-pass at
     #: ``deflection_reference_cutoff_hz`` [Hz]) is subtracted (friction flips, torque reference)
-    deflection_damping_Nms_rad: float = 60.0
-    deflection_link_cutoff_hz: float = 30.0
+    deflection_damping_Nms_rad: float = 80.0
+    deflection_link_cutoff_hz: float = 80.0
     deflection_reference_cutoff_hz: float = 2.0
     #: 0: kp and the deflection damping always act. > 0: only while the joint moves (the
     #: feedforward's debounced rest gate on dq_out, as for the inertia compensation), faded in and out
@@ -64,7 +64,7 @@ class FeedbackGains:
     #: staircase off the command. The link's acceleration also with ``acceleration_source: motor`` (then
     #: differentiated and filtered on its own, as J_c's would be with the link source). It adds link-acceleration feedback
     #: like J_c: with it J_c 0.3 misses the phase margin (43 deg), J_c 0.2 meets it (50 deg, GM 9.1 dB)
-    deflection_link_lag_compensation: bool = True
+    deflection_link_lag_compensation: bool = False
     #: extra gain on the tau_in error in a band [Nm/Nm] (0 = off): ``+ band_gain * BP[e]`` on the command,
     #: BP a 4th-order Butterworth band-pass ``band_low_hz``-``band_high_hz`` [Hz] (the strokes' band).
     #: Loop gain where the hand moves, not at the sheath-stick mode (13-30 Hz, where kp is capped) nor at
@@ -80,6 +80,14 @@ class FeedbackGains:
     #: output torque does not follow the motor), where it adds ``k_o LP (R + b H_r) P`` (loop_model)
     output_torque_gain: float = 2.0
     output_torque_cutoff_hz: float = 10.0
+    #: a peak on that term: ``LP[e_out] x (1 + output_torque_peak_gain BP)``, BP a unit-gain second-order
+    #: band-pass at ``output_torque_peak_hz`` [Hz] with quality ``output_torque_peak_q``: the gain is
+    #: ``output_torque_gain (1 + peak_gain)`` at the peak (where fast strokes swing the link on the hand) and
+    #: about ``output_torque_gain`` at the grip and two-mass modes (4-13 Hz), where a higher gain shakes a
+    #: firmly held link. 0 = off
+    output_torque_peak_gain: float = 1.0
+    output_torque_peak_hz: float = 1.5
+    output_torque_peak_q: float = 1.5
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -91,7 +99,8 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
                        "inertia_comp_kg_m2", "acceleration_cutoff_hz", "acceleration_source",
                        "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz",
                        "rest_gate_cutoff_hz", "deflection_link_lag_compensation", "band_gain", "band_low_hz",
-                       "band_high_hz", "output_torque_gain", "output_torque_cutoff_hz"}, p)
+                       "band_high_hz", "output_torque_gain", "output_torque_cutoff_hz",
+                       "output_torque_peak_gain", "output_torque_peak_hz", "output_torque_peak_q"}, p)
     source = AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
                                            fd.acceleration_source.name.lower()).upper()]
     lag = get_bool(c, "deflection_link_lag_compensation", p, fd.deflection_link_lag_compensation)
@@ -119,7 +128,11 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "band_high_hz", p, fd.band_high_hz, min_value=0.0, min_exclusive=True, max_value=0.45 * nyq),
         get_float(c, "output_torque_gain", p, fd.output_torque_gain, min_value=0.0, max_value=100.0),
         get_float(c, "output_torque_cutoff_hz", p, fd.output_torque_cutoff_hz, min_value=0.0, min_exclusive=True,
-                  max_value=0.45 * nyq))
+                  max_value=0.45 * nyq),
+        get_float(c, "output_torque_peak_gain", p, fd.output_torque_peak_gain, min_value=0.0, max_value=20.0),
+        get_float(c, "output_torque_peak_hz", p, fd.output_torque_peak_hz, min_value=0.0, min_exclusive=True,
+                  max_value=0.45 * nyq),
+        get_float(c, "output_torque_peak_q", p, fd.output_torque_peak_q, min_value=0.3, max_value=30.0))
     if out.output_torque_gain > 0.0 and out.rest_gate_cutoff_hz <= 0.0:
         raise ConfigError(f"{p}.output_torque_gain", "needs rest_gate_cutoff_hz > 0: without the fade the output load "
                           f"cells' noise x the gain reaches the command at rest, got {out.output_torque_gain}")

@@ -137,6 +137,23 @@ def band_pass_sos(low_hz: float, high_hz: float, dt_s: float) -> np.ndarray:
     return np.ascontiguousarray(sos[:, [0, 1, 2, 4, 5]])
 
 
+def output_peak_biquad(gain: float, peak_hz: float, q: float, dt_s: float) -> np.ndarray:
+    """The output torque gain's peak filter ``1 + gain BP``: BP the unit-gain second-order band-pass at
+    ``peak_hz`` [Hz] with quality ``q`` (scipy ``iirpeak``), so the gain is ``1 + gain`` at the peak and
+    -> 1 away from it; as ``b0 b1 b2 a1 a2`` (``a0`` = 1 dropped). ``gain`` 0 gives the identity.
+
+    :raises ValueError: unless gain >= 0, 0 < peak_hz < Nyquist and q > 0.
+    """
+    from scipy import signal
+    nyq = 0.5 / dt_s
+    if not (gain >= 0.0 and 0.0 < peak_hz < nyq and q > 0.0):
+        raise ValueError(f"peak filter needs gain >= 0, 0 < peak < {nyq:g} Hz, q > 0, got {gain:g}, {peak_hz:g} Hz, {q:g}")
+    if gain == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+    b, a = signal.iirpeak(peak_hz, q, fs=1.0 / dt_s)
+    return np.concatenate((a + gain * b, a[1:]))
+
+
 def lowpass_alpha(cutoff_hz: float, dt_s: float) -> float:
     """Pole ``exp(-w T)`` of the first-order low-pass ``y += (1 - alpha)(x - y)``; 0 = off."""
     if cutoff_hz <= 0.0:

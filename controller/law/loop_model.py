@@ -39,7 +39,7 @@ from scipy import signal
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
 from capstan.controller.law.feedback_config import deflection_link_lead_s
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
-                                        q_filter_coefficients, qpinv_filter_coefficients)
+                                        output_peak_biquad, q_filter_coefficients, qpinv_filter_coefficients)
 from capstan.controller.law.loop_plant import (PlantPoint, plant_continuous, plant_discrete,  # noqa: F401 (re-exported)
                                                plant_link_velocity_continuous, plant_state_space,
                                                plant_velocity_continuous)
@@ -135,13 +135,26 @@ def output_torque_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarra
     the low frequencies to rounding (poles near z = 1). The gravity model's part of e_out is left out as
     in the slip points' residual link stiffness (stability.slip_link_stiffness_Nm_rad)."""
     fb, dt = cfg.feedback, cfg.dt_s
-    a = lowpass_alpha(fb.output_torque_cutoff_hz, dt)
     resp = freq_response(reference_tf(cfg), f_hz, dt)
     if cfg.torque_loop != TorqueLoop.LDO and fb.ki_1_s > 0.0:
         resp = resp + freq_response((np.array([fb.ki_1_s * dt]), np.array([1.0, -1.0])), f_hz, dt)
     if fb.deflection_damping_Nms_rad != 0.0:
         resp = resp + fb.deflection_damping_Nms_rad * freq_response(deflection_reference_filter(cfg), f_hz, dt)
-    return fb.output_torque_gain * freq_response((np.array([1.0 - a]), np.array([1.0, -a])), f_hz, dt) * resp
+    return fb.output_torque_gain * freq_response(output_torque_filter(cfg), f_hz, dt) * resp
+
+
+def output_torque_filter(cfg: ControllerConfig) -> TF:
+    """``Ho``: the step's filter on e_out, a first-order low-pass at ``feedback.output_torque_cutoff_hz``
+    times its peak filter ``1 + g BP`` (``feedback.output_torque_peak_gain`` > 0; the step's biquad,
+    :func:`capstan.controller.law.ldo.output_peak_biquad`)."""
+    fb = cfg.feedback
+    a = lowpass_alpha(fb.output_torque_cutoff_hz, cfg.dt_s)
+    lp: TF = (np.array([1.0 - a]), np.array([1.0, -a]))
+    if fb.output_torque_peak_gain <= 0.0:
+        return lp
+    b0, b1, b2, a1, a2 = output_peak_biquad(fb.output_torque_peak_gain, fb.output_torque_peak_hz,
+                                            fb.output_torque_peak_q, cfg.dt_s)
+    return _mul(lp, (np.array([b0, b1, b2]), np.array([1.0, a1, a2])))
 
 
 def acceleration_filter(cfg: ControllerConfig, source: AccelerationSource | None = None) -> TF:
@@ -292,8 +305,7 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     # the output torque's gain: its low-pass on tau_out (= tau_in in slip, not moved by the motor in stick)
     # and the deflection damping's reference rate, which the term moves
     k_o = fb.output_torque_gain if p.slip else 0.0
-    a_o = lowpass_alpha(fb.output_torque_cutoff_hz, cfg.dt_s)
-    Ho = _Block((np.array([1.0 - a_o]), np.array([1.0, -a_o])) if k_o != 0.0 else none)
+    Ho = _Block(output_torque_filter(cfg) if k_o != 0.0 else none)
     Hr = _Block(deflection_reference_filter(cfg) if k_o != 0.0 and b_defl != 0.0 else none)
     sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
              AccL.n, Bd.n, Ho.n, Hr.n]

@@ -28,6 +28,7 @@ Control law (per cycle, ``k``)::
     tau_out_des += g_fb k_o LP[e_out]   output torque gain (feedback.output_torque_gain, faded like kp):
                                    e_out = tau_g + tau_out_ref - r_out (T_up_out - T_lo_out), the hand's
                                    torque less the link's own inertia torque, LP feedback.output_torque_cutoff_hz;
+                                   x (1 + g BP[.]), a peak at feedback.output_torque_peak_hz (g output_torque_peak_gain);
                                    at rest (g_fb = 0) nothing, so load-cell noise stays off the command
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
@@ -149,7 +150,9 @@ C_BAND_SOS = 55         # 2 x 5 coefficients of its band-pass (two biquads, ldo.
 C_OUT_GAIN = 65         # gain on the output torque's error [Nm/Nm] (feedback.output_torque_gain; 0 = off)
 C_OUT_ALPHA = 66        # pole of its low-pass (feedback.output_torque_cutoff_hz)
 C_R_OUT = 67            # output pulley radius [m]: tau_out = r_out (T_up_out - T_lo_out)
-N_CFG = 68              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_OUT_PEAK_ON = 68      # 1.0 = its peak filter is on (feedback.output_torque_peak_gain > 0)
+C_OUT_PEAK = 69         # 5 coefficients b0 b1 b2 a1 a2 of its peak filter 1 + g BP (ldo.output_peak_biquad)
+N_CFG = 74              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -183,7 +186,8 @@ S_VM_PREV = S_FBG + 1      # previous motor velocity [rad/s] (J_c from the motor
 S_ACC_M = S_VM_PREV + 1    # the motor's filtered acceleration [rad/s^2] (J_c's, acceleration_source motor)
 S_BAND = S_ACC_M + 1       # 2 x 2 biquad states of the band-pass on the error (NaN until the first cycle set them)
 S_OUT_E = S_BAND + 4       # low-passed output torque error [Nm] (NaN until the first cycle set it)
-N_STATE = S_OUT_E + 1
+S_OUT_PEAK = S_OUT_E + 1   # 2 biquad states of its peak filter (NaN until the first cycle set them)
+N_STATE = S_OUT_PEAK + 2
 
 
 @njit(cache=True)
@@ -224,6 +228,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_FBG] = 0.0
         st[S_BAND] = math.nan
         st[S_OUT_E] = math.nan
+        st[S_OUT_PEAK] = math.nan
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
 
@@ -267,7 +272,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         e_out = tau_g + r.tau_out_ref_Nm - cfg[C_R_OUT] * (r.T_up_out_N - r.T_lo_out_N)
         if math.isnan(st[S_OUT_E]):
             st[S_OUT_E] = e_out
-        tau_out_des += g_fb * cfg[C_OUT_GAIN] * lowpass_step(cfg[C_OUT_ALPHA], st, S_OUT_E, e_out)
+        e_lp = lowpass_step(cfg[C_OUT_ALPHA], st, S_OUT_E, e_out)
+        if cfg[C_OUT_PEAK_ON] != 0.0:   # x (1 + g BP): more gain where the strokes swing the link on the hand
+            if math.isnan(st[S_OUT_PEAK]):  # (~2 Hz), ~x1 at the grip and two-mass modes (4-13 Hz)
+                biquad_init_steady(cfg, C_OUT_PEAK, st, S_OUT_PEAK, e_lp)
+            e_lp = biquad_step(cfg, C_OUT_PEAK, st, S_OUT_PEAK, e_lp)
+        tau_out_des += g_fb * cfg[C_OUT_GAIN] * e_lp
     if not ff_motor:
         tau_out_des += tau_fc
     tau_in_des = cfg[C_R_RATIO] * tau_out_des

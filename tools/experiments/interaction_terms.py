@@ -16,6 +16,8 @@ Variants (:data:`TERM_VARIANTS`):
 * ``no_deflection_damping`` (kp kept) / ``no_torque_feedback`` (kp 0, no damping, J_c 0.3: the
   loop before the damping) / ``kp_always_on`` (no fade at rest);
 * ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
+* ``no_output_peak`` — the output torque gain's peak off; ``inertia_comp_link`` — J_c 0.2 from the
+  link's acceleration (b 60, link rate 30 Hz, lead), the set shipped before the peak;
 * ``inertia_comp_motor`` — the inertia compensation from the motor's acceleration (J_c 0.45, faded
   with kp and b; b 80, link rate at 80 Hz without the lead): the largest inertia compensation inside
   the margins, reachable by config (:data:`MOTOR_INERTIA_COMP`);
@@ -66,6 +68,7 @@ class TermVariant:
 _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
 #: the loop before the deflection-rate damping: no torque feedback (kp 0), no damping, J_c 0.3
 _PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3,
+         "acceleration_source": "link",
          "band_gain": 0.0, "output_torque_gain": 0.0}
 #: uncompensated: no inertia compensation and no output torque gain (it compensates friction and inertia too)
 _UNCOMPENSATED = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}}
@@ -75,11 +78,14 @@ _UNCOMPENSATED = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 
 #: margin): PM 51.6 deg, GM 8.5 dB (slip, K 200, J_m -30 %)
 MOTOR_INERTIA_COMP = {"inertia_comp_kg_m2": 0.45, "acceleration_source": "motor", "deflection_damping_Nms_rad": 80.0,
                       "deflection_link_cutoff_hz": 80.0, "deflection_link_lag_compensation": False}
+#: J_c as shipped before the output torque gain's peak: 0.2 from the link's acceleration, b 60, link rate 30 Hz, lead
+LINK_INERTIA_COMP = {"inertia_comp_kg_m2": 0.2, "acceleration_source": "link", "deflection_damping_Nms_rad": 60.0,
+                     "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True}
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
-                           " (lag-compensated link rate) + integral trim + inertia compensation"
-                           " + output torque gain 2 (10 Hz)"),
+                           " (b 80, link rate 80 Hz) + integral trim + inertia compensation (0.45, motor's)"
+                           " + output torque gain 2 (10 Hz, x2 peak at 1.5 Hz)"),
     TermVariant("no_output_torque_gain", "output torque gain off (the loop before it)",
                 extra={"feedback": {"output_torque_gain": 0.0}}),
     TermVariant("no_band_gain", "band gain off (the loop before it)", extra={"feedback": {"band_gain": 0.0}}),
@@ -92,6 +98,9 @@ TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("no_inertia_comp", "inertia compensation off", extra=_NO_JC),
     TermVariant("inertia_comp_motor", "J_c 0.45 from the motor's acceleration (faded), b 80, link rate 80 Hz",
                 extra={"feedback": MOTOR_INERTIA_COMP}),
+    TermVariant("no_output_peak", "the output torque gain's peak off", extra={"feedback": {"output_torque_peak_gain": 0.0}}),
+    TermVariant("inertia_comp_link", "J_c 0.2 from the link's acceleration, b 60, link rate 30 Hz, lead (the set before)",
+                extra={"feedback": LINK_INERTIA_COMP}),
     TermVariant("no_integral_trim", "integral trim off (ki 0)", extra={"feedback": {"ki_1_s": 0.0}}),
     TermVariant("narrow_rest_gate", "rest band 2 x gyro noise (0.004 rad/s)",
                 extra={"feedforward": {"dead_band_rad_s": 0.004}}),

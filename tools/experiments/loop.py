@@ -129,6 +129,9 @@ def run(args: argparse.Namespace) -> int:
     if fb.output_torque_gain:
         print(f"output torque gain {fb.output_torque_gain:g} on the output load cells' error, low-pass "
               f"{fb.output_torque_cutoff_hz:g} Hz (faded like kp; in the loop at the slip points)")
+        if fb.output_torque_peak_gain:
+            print(f"  x (1 + {fb.output_torque_peak_gain:g} BP): a peak at {fb.output_torque_peak_hz:g} Hz, "
+                  f"quality {fb.output_torque_peak_q:g}")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
           f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
