@@ -38,25 +38,33 @@ def _feed(r: np.ndarray, k: int, dt: float) -> None:
     r["dq_m_rad_s"] = r["dq_out_rad_s"] = r["tau_out_ref_Nm"] = 0.0
 
 
-def test_the_analysis_output_path_is_the_steps():
-    """The compiled step's command for a pulse of measured output torque is ``-k_o Ho (R + b H_r)``
-    of it (the loop model's :func:`output_torque_response`), compared in frequency (DFT of the
-    step's response over 2^15 cycles, long enough for the 0.3 Hz band to decay) within 1e-3."""
-    cfg = _linear(LINEAR)
+def _pulse_response(cfg: ControllerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled step's command for a one-cycle pulse of measured output torque (tau_out =
+    r_out (T_up_out - T_lo_out) = 0.1 Nm at cycle 300, fade open), as a frequency response per Nm
+    of the pulse: ``(f [Hz], H)`` over 0.05-100 Hz (DFT over 2^15 cycles, long enough for the
+    0.3 Hz band to decay)."""
     ctl = Controller(cfg)
     r = ctl.record[0]
     n, k0 = 2 ** 15, 300
     u = np.zeros(n)
     for k in range(n):
         _feed(r, k, cfg.dt_s)
-        if k == k0:         # tau_out = r_out (T_up_out - T_lo_out) = 0.1 Nm for one cycle
+        if k == k0:
             r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + 1.25, 150.0 - 1.25
         u[k] = ctl.step()
-    assert u[k0 - 1] == 0.0 and np.all(u[:k0] == 0.0)      # the fade had opened: nothing before the pulse
+    assert np.all(u[:k0] == 0.0)        # the fade had opened: nothing before the pulse
     f = np.fft.rfftfreq(n, cfg.dt_s)
     sel = (f > 0.05) & (f < 100.0)
-    h_step = np.fft.rfft(u)[sel] / (0.1 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
-    h_lm = -output_torque_response(cfg, f[sel])
+    return f[sel], np.fft.rfft(u)[sel] / (0.1 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
+
+
+def test_the_analysis_output_path_is_the_steps():
+    """The compiled step's command for a pulse of measured output torque is ``-k_o Ho (R + b H_r)``
+    of it (the loop model's :func:`output_torque_response`), compared in frequency (DFT of the
+    step's response over 2^15 cycles, long enough for the 0.3 Hz band to decay) within 1e-3."""
+    cfg = _linear(LINEAR)
+    f, h_step = _pulse_response(cfg)
+    h_lm = -output_torque_response(cfg, f)
     assert np.max(np.abs(h_step - h_lm) / np.abs(h_lm)) < 1e-3
 
 
@@ -288,22 +296,11 @@ def test_the_analysis_peak_path_is_the_steps():
     rest of the reference path) against the loop model's ``output_torque_response``, within 1e-3; and it
     differs from the path without the peak by more than 2x at the peak (the test could fail)."""
     cfg = _linear({**LINEAR, "output_torque_peak_gain": 3.0, "output_torque_peak_hz": 2.0, "output_torque_peak_q": 4.0})
-    ctl = Controller(cfg)
-    r = ctl.record[0]
-    n, k0 = 2 ** 15, 300
-    u = np.zeros(n)
-    for k in range(n):
-        _feed(r, k, cfg.dt_s)
-        if k == k0:
-            r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + 1.25, 150.0 - 1.25
-        u[k] = ctl.step()
-    f = np.fft.rfftfreq(n, cfg.dt_s)
-    sel = (f > 0.05) & (f < 100.0)
-    h_step = np.fft.rfft(u)[sel] / (0.1 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
-    h_lm = -output_torque_response(cfg, f[sel])
+    f, h_step = _pulse_response(cfg)
+    h_lm = -output_torque_response(cfg, f)
     assert np.max(np.abs(h_step - h_lm) / np.abs(h_lm)) < 1e-3
-    plain = -output_torque_response(_linear({**LINEAR, "output_torque_peak_gain": 0.0}), f[sel])
-    at = np.argmin(np.abs(f[sel] - 2.0))
+    plain = -output_torque_response(_linear({**LINEAR, "output_torque_peak_gain": 0.0}), f)
+    at = np.argmin(np.abs(f - 2.0))
     assert abs(h_step[at]) > 2.0 * abs(plain[at])
 
 

@@ -40,12 +40,11 @@ implicit too (:func:`stick_slip.step_velocity`, ``P(v)``): unconditionally stabl
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from numba import njit
 
-from capstan.models.transmission.stick_slip import friction_update, step_velocity
+from capstan.models.transmission.stick_slip import simulate_paths
 
 
 @njit(cache=True)
@@ -75,36 +74,6 @@ def simulate_unit_hardening(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarra
         return 0
     h1 = c_node_1_rad2 * K1_Nm_rad
     h2 = c_node_1_rad2 * K2_Nm_rad if anchor2_rad.shape[0] == t_s.shape[0] else 0.0
-    has_scale = cap_scale.shape[0] == t_s.shape[0]
-    for k in range(starts.shape[0] - 1):
-        a0 = starts[k]
-        b0 = starts[k + 1]
-        if b0 <= a0:
-            continue
-        x = x0_rad[k]
-        c0 = c0_Nms_rad[k]
-        kx = kx_Nm_rad[k]
-        v = 0.0
-        f = 0.0
-        out_x_rad[a0] = x
-        out_v_rad_s[a0] = 0.0
-        out_f_Nm[a0] = 0.0
-        for i in range(a0 + 1, b0):
-            dt = t_s[i] - t_s[i - 1]
-            if not dt > 0.0:
-                return i
-            c = c0 + kx * dt
-            tfc = tau_fc_Nm * cap_scale[i] if has_scale else tau_fc_Nm
-            e1 = anchor1_rad[i] - x
-            e2 = anchor2_rad[i] - x if h2 != 0.0 else 0.0
-            rhs = a_Nm[i] - kx * x + h1 * e1 * e1 * e1 + h2 * e2 * e2 * e2
-            v = step_velocity(rhs, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
-                              b_vis_Nms_rad, c2_Nms2_rad2, dahl_exp, h1, e1, h2, e2)
-            if not math.isfinite(v):
-                return i
-            f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s, dahl_exp)
-            x = x + dt * v
-            out_x_rad[i] = x
-            out_v_rad_s[i] = v
-            out_f_Nm[i] = f
-    return t_s.shape[0]
+    return simulate_paths(t_s, a_Nm, starts, x0_rad, c0_Nms_rad, kx_Nm_rad, k_pre_Nm_rad, tau_fc_Nm, zeta_s,
+                          eta_s_rad_s, b_vis_Nms_rad, out_x_rad, out_v_rad_s, out_f_Nm, cap_scale, c2_Nms2_rad2,
+                          dahl_exp, h1, anchor1_rad, h2, anchor2_rad)

@@ -59,6 +59,10 @@ from numba import njit
 MAX_ITER = 60
 
 
+#: anchors of a path that is not there (never read: its h is 0)
+_NO_ANCHOR = np.empty(0)
+
+
 @njit(cache=True)
 def capacity_Nm(v_rad_s: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float) -> float:
     """Friction capacity at speed ``v``: ``tau_fc [1 + (zeta_s - 1) exp(-(v/eta_s)^2)]`` [Nm] (eq 21, zeta_c = 1)."""
@@ -200,6 +204,23 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
     :returns: the number of samples integrated (``len(t_s)`` unless a step failed: NaN
         velocity, non-increasing time).
     """
+    return simulate_paths(t_s, a_Nm, starts, x0_rad, c0_Nms_rad, kx_Nm_rad, k_pre_Nm_rad, tau_fc_Nm, zeta_s,
+                          eta_s_rad_s, b_vis_Nms_rad, out_x_rad, out_v_rad_s, out_f_Nm, cap_scale, c2_Nms2_rad2,
+                          dahl_exp, 0.0, _NO_ANCHOR, 0.0, _NO_ANCHOR)
+
+
+@njit(cache=True, nogil=True)
+def simulate_paths(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad: np.ndarray, c0_Nms_rad: np.ndarray,
+                   kx_Nm_rad: np.ndarray, k_pre_Nm_rad: float, tau_fc_Nm: float, zeta_s: float, eta_s_rad_s: float,
+                   b_vis_Nms_rad: float, out_x_rad: np.ndarray, out_v_rad_s: np.ndarray, out_f_Nm: np.ndarray,
+                   cap_scale: np.ndarray, c2_Nms2_rad2: float, dahl_exp: float, h1_Nm_rad3: float,
+                   anchor1_rad: np.ndarray, h2_Nm_rad3: float, anchor2_rad: np.ndarray) -> int:
+    """:func:`simulate_unit` with the cubic parts ``h_j (A_j - x)^3`` of up to two hardening elastic
+    paths (:mod:`capstan.models.transmission.hardening`; ``h_j = c_node K_j >= 0`` [Nm/rad^3],
+    anchors ``A_j`` per sample [rad]). A path with ``h_j = 0`` is not read (its anchors may be
+    empty), and with both 0 every step does exactly the arithmetic of the linear unit.
+    """
+    hard = h1_Nm_rad3 != 0.0 or h2_Nm_rad3 != 0.0
     has_scale = cap_scale.shape[0] == t_s.shape[0]
     for k in range(starts.shape[0] - 1):
         a0 = starts[k]
@@ -220,8 +241,17 @@ def simulate_unit(t_s: np.ndarray, a_Nm: np.ndarray, starts: np.ndarray, x0_rad:
                 return i
             c = c0 + kx * dt
             tfc = tau_fc_Nm * cap_scale[i] if has_scale else tau_fc_Nm
-            v = step_velocity(a_Nm[i] - kx * x, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
-                              b_vis_Nms_rad, c2_Nms2_rad2, dahl_exp)
+            rhs = a_Nm[i] - kx * x
+            e1 = 0.0
+            e2 = 0.0
+            if hard:
+                if h1_Nm_rad3 != 0.0:
+                    e1 = anchor1_rad[i] - x
+                if h2_Nm_rad3 != 0.0:
+                    e2 = anchor2_rad[i] - x
+                rhs = rhs + h1_Nm_rad3 * e1 * e1 * e1 + h2_Nm_rad3 * e2 * e2 * e2
+            v = step_velocity(rhs, c, v, f, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s,
+                              b_vis_Nms_rad, c2_Nms2_rad2, dahl_exp, h1_Nm_rad3, e1, h2_Nm_rad3, e2)
             if not math.isfinite(v):
                 return i
             f = friction_update(f, v, dt, k_pre_Nm_rad, tfc, zeta_s, eta_s_rad_s, dahl_exp)
