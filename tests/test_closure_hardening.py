@@ -115,15 +115,10 @@ def test_hardening_traced_to_deflection_and_cuts_heldout_error(case: str) -> Non
     assert 3.0 <= first.params["beta"] <= 9.0 and first.params["beta_plausible"]
 
 
-def test_hardening_on_the_long_run_path(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_hardening_on_the_long_run_path(long_path: None) -> None:
     # the long-run path (baseline on windows finished on every sample, candidates screened on
-    # windows) with its thresholds lowered so that these 15 s runs take it (as test_closure_long_runs)
+    # windows) with its thresholds lowered so that these 15 s runs take it (conftest.long_path)
     from capstan.models.closure import windows
-    monkeypatch.setattr(windows, "WARM_START_SAMPLES", 5_000)
-    monkeypatch.setattr(windows, "WINDOW_SAMPLES", 10_000)
-    monkeypatch.setattr(windows, "WINDOW_S", 5.0)
-    monkeypatch.setattr(windows, "SCREEN_SAMPLES", 10_000)
-    monkeypatch.setattr(windows, "SCREEN_WINDOW_S", 5.0)
     for case in ("angles_clean", "angles_hardening"):
         res = run.__wrapped__(case)            # not the cached short-path result
         r = res.targets[Target.TAU_OUT]

@@ -20,17 +20,6 @@ from test_closure_families import SIGNAL, close_runs
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture
-def long_path(monkeypatch: pytest.MonkeyPatch) -> None:
-    # 15 000 training samples: two 5 s windows of 10 000 samples (the shipped figures: an hour's
-    # 2.5 M training samples, four 10 s windows of 40 000)
-    monkeypatch.setattr(windows, "WARM_START_SAMPLES", 5_000)
-    monkeypatch.setattr(windows, "WINDOW_SAMPLES", 10_000)
-    monkeypatch.setattr(windows, "WINDOW_S", 5.0)
-    monkeypatch.setattr(windows, "SCREEN_SAMPLES", 10_000)
-    monkeypatch.setattr(windows, "SCREEN_WINDOW_S", 5.0)
-
-
 def _close(effect: str) -> ClosureResult:
     # not the cached run() of test_closure_families: its results may come from the short path
     return close_runs(effect)

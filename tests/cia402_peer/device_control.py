@@ -44,6 +44,11 @@ class DeviceControl:
     internal_limit: bool
     ramp_s: float
 
+    def od_value(self, index: int, sub: int, default: int) -> int:
+        """The value of object ``index:sub``, or ``default`` when the EDS does not define it."""
+        e = self.od.get((index, sub))
+        return default if e is None else e.value
+
     def statusword(self) -> int:
         sw = _SW[self.state] | 0x0200
         if self.internal_limit and self.state == Ds402.OPERATION_ENABLED:
@@ -52,7 +57,7 @@ class DeviceControl:
 
     def _quick_stop(self, now: float) -> None:
         self.state = Ds402.QUICK_STOP_ACTIVE
-        option = self.od[(0x605A, 0)].value if (0x605A, 0) in self.od else 2
+        option = self.od_value(0x605A, 0, 2)
         if option == 0:
             self.state = Ds402.SWITCH_ON_DISABLED
         else:
@@ -93,7 +98,7 @@ class DeviceControl:
             if switch_on:
                 self.state = S.SWITCHED_ON                                        # 5
             elif shutdown:
-                option = self.od[(0x605B, 0)].value if (0x605B, 0) in self.od else 0
+                option = self.od_value(0x605B, 0, 0)
                 if option == 1:
                     self._ramp = ("shutdown", now, self._applied)               # 8 after the ramp
                 else:
@@ -103,21 +108,21 @@ class DeviceControl:
             elif quick:
                 self._quick_stop(now)                                             # 11
         elif s == S.QUICK_STOP_ACTIVE:
-            option = self.od[(0x605A, 0)].value if (0x605A, 0) in self.od else 2
+            option = self.od_value(0x605A, 0, 2)
             if disable_voltage:
                 self.state, self._ramp = S.SWITCH_ON_DISABLED, None               # 12
             elif enable and 5 <= option <= 8:
                 self.state, self._ramp = S.OPERATION_ENABLED, None                # 16
 
     def _update_torque(self, now: float) -> None:
-        limit = self.od[(0x6072, 0)].value if (0x6072, 0) in self.od else 1000
+        limit = self.od_value(0x6072, 0, 1000)
         if self._ramp is not None:
             kind, t0, start = self._ramp
             frac = max(0.0, 1.0 - (now - t0) / self.ramp_s)
             self._applied = start * frac
             if frac == 0.0:
                 self._ramp = None
-                option = self.od[(0x605A, 0)].value if (0x605A, 0) in self.od else 2
+                option = self.od_value(0x605A, 0, 2)
                 if kind == "shutdown" and self.state == Ds402.OPERATION_ENABLED:
                     self.state = Ds402.READY_TO_SWITCH_ON
                 elif kind == "quick_stop" and self.state == Ds402.QUICK_STOP_ACTIVE and option <= 4:

@@ -216,12 +216,12 @@ class PeerDrive(DeviceControl):
     def _heartbeat_event(self) -> None:
         self._record_error(0x8130)
         self._emcy(0x8130, 0x11)
-        behaviour = self.od[(0x1029, 1)].value if (0x1029, 1) in self.od else 0
+        behaviour = self.od_value(0x1029, 1, 0)
         if behaviour == 0 and self.nmt == Nmt.OPERATIONAL:
             self.nmt = Nmt.PRE_OPERATIONAL
         elif behaviour == 2:
             self.nmt = Nmt.STOPPED
-        option = self.od[(0x6007, 0)].value if (0x6007, 0) in self.od else 0
+        option = self.od_value(0x6007, 0, 0)
         if option == 1:
             self._fault(0x8130, 0x11, emcy=False)
         elif option == 2 and self.state not in (Ds402.FAULT, Ds402.FAULT_REACTION_ACTIVE):
