@@ -26,6 +26,7 @@ BAND_HZ = (0.3, 2.0)
 #: the shipped feedback as the linear loop the analysis has (no fade, no integral trim)
 SHIPPED_LINEAR = {"kp": 0.75, "deflection_damping_Nms_rad": 60.0, "deflection_link_cutoff_hz": 30.0,
                   "deflection_link_lag_compensation": True, "inertia_comp_kg_m2": 0.2, "acceleration_source": "link",
+                  "acceleration_cutoff_hz": 5.0, "link_inertia_comp_kg_m2": 0.0,
                   "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "output_torque_gain": 0.0, "band_gain": K_B, "band_low_hz": BAND_HZ[0],
                   "band_high_hz": BAND_HZ[1]}
 

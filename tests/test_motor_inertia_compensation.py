@@ -27,7 +27,7 @@ from test_torque_loop import OLD_LOOP, _run_step_physical
 MOTOR_SET = {"kp": 0.75, "deflection_damping_Nms_rad": 80.0, "inertia_comp_kg_m2": 0.45, "acceleration_source": "motor",
            "acceleration_cutoff_hz": 5.0, "deflection_link_cutoff_hz": 80.0, "deflection_link_lag_compensation": False,
            "deflection_reference_cutoff_hz": 2.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.15, "band_gain": 0.0,
-             "output_torque_gain": 0.0}
+             "output_torque_gain": 0.0, "link_inertia_comp_kg_m2": 0.0}
 #: ... as the linear loop the analysis has at full gains (no fade, no integral trim)
 MOTOR_LINEAR = {**MOTOR_SET, "rest_gate_cutoff_hz": 0.0, "ki_1_s": 0.0, "output_torque_gain": 0.0}
 #: the grid points that limit it: slip at J_m +30 % (phase margin), slip at K 200 / J_m -30 % (gain

@@ -274,13 +274,13 @@ def test_a_firm_grip_on_the_distributed_rig():
 def test_the_peak_filter_is_one_plus_gain_band_pass():
     """``output_peak_biquad`` (the step's coefficients and the loop model's): gain ``1 + g`` at the peak
     with zero phase, -> 1 at DC and far above (0 at DC: the push's DC gain is unchanged), and the
-    identity for gain 0; the shipped peak (1 at 1.5 Hz, Q 1.5) is in the step's layout."""
+    identity for gain 0; the shipped peak (1 at 2 Hz, Q 1.5) is in the step's layout."""
     from capstan.controller.law import step as s
     from capstan.controller.law.ldo import output_peak_biquad
     dt = 1e-3
-    c = output_peak_biquad(1.0, 1.5, 1.5, dt)
+    c = output_peak_biquad(1.0, 2.0, 1.5, dt)
     b, a = c[:3], np.concatenate(([1.0], c[3:]))
-    _, h = signal.freqz(b, a, worN=[1e-4, 1.5, 40.0], fs=1.0 / dt)
+    _, h = signal.freqz(b, a, worN=[1e-4, 2.0, 40.0], fs=1.0 / dt)
     assert abs(h[1]) == pytest.approx(2.0, rel=1e-6) and abs(np.angle(h[1])) < 1e-6
     assert abs(h[0]) == pytest.approx(1.0, abs=1e-4) and abs(h[2]) == pytest.approx(1.0, abs=0.03)
     assert np.array_equal(output_peak_biquad(0.0, 1.5, 1.5, dt), [1.0, 0.0, 0.0, 0.0, 0.0])

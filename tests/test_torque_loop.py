@@ -26,8 +26,9 @@ LOCKSTEP_LDO = {"torque_loop": "ldo", "feedback": {"kp": 5.0, "kd_s": 0.05, "der
                 "ldo": {"q_cutoff_hz": 10.0}}
 #: J_c and the damping as shipped before the output torque gain's peak: J_c 0.2 from the link's acceleration
 #: (b 60, link rate 30 Hz, lag compensated), no peak
-PREV_JC = {"inertia_comp_kg_m2": 0.2, "acceleration_source": "link", "deflection_damping_Nms_rad": 60.0,
-           "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "output_torque_peak_gain": 0.0}
+PREV_JC = {"inertia_comp_kg_m2": 0.2, "acceleration_source": "link", "acceleration_cutoff_hz": 5.0,
+           "deflection_damping_Nms_rad": 60.0, "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True,
+           "output_torque_peak_gain": 0.0, "link_inertia_comp_kg_m2": 0.0}
 #: the shipped feedback before the deflection-rate damping: feedforward + integral trim + J_c, kp 0
 OLD_LOOP = {**PREV_JC, "kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "band_gain": 0.0,
             "output_torque_gain": 0.0}
@@ -176,7 +177,7 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
         check_margins(bad)
     assert check_margins(ControllerConfig.from_mapping({})).ok
     shipped = ControllerConfig.from_mapping({})
-    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 80.0
+    assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 100.0
     # the link's velocity at 150 Hz without the lag compensation, J_c 0.3, no band gain (tests/test_band_gain.py),
     # no output torque gain (tests/test_output_torque_gain.py)
     plain = {**PREV_JC, "deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3,

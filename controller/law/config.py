@@ -274,6 +274,12 @@ class ControllerConfig:
                               f"must be below the smallest inertia the loop is checked for, {what} = "
                               f"{j_min:.3f} kg m^2 (the joint would feel no or negative inertia and run "
                               f"away), got {fb.inertia_comp_kg_m2}")
+        j_link = stab.link_inertia_kg_m2 * (1.0 - stab.inertia_tolerance)
+        if fb.link_inertia_comp_kg_m2 >= j_link:
+            raise ConfigError(f"{prefix}.feedback.link_inertia_comp_kg_m2",
+                              f"must be below the smallest link inertia the loop is checked for, "
+                              f"stability.link_inertia_kg_m2 (1 - inertia_tolerance) = {j_link:.3f} kg m^2 (the "
+                              f"hand would feel no or negative link inertia), got {fb.link_inertia_comp_kg_m2}")
         return ControllerConfig(dt, loop, plant, q_fc, fb, tau_fc_hz, g_on, mgl, ff, safety, stab,
                                 q_out_blend_hz=blend_hz)
 

@@ -60,6 +60,9 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_OUT_PEAK_ON] = 1.0 if fb.output_torque_peak_gain > 0.0 else 0.0
     c[_s.C_OUT_PEAK:_s.C_OUT_PEAK + 5] = output_peak_biquad(fb.output_torque_peak_gain, fb.output_torque_peak_hz,
                                                             fb.output_torque_peak_q, dt)
+    c[_s.C_JLC] = fb.link_inertia_comp_kg_m2
+    c[_s.C_JLC_ALPHA] = lowpass_alpha(fb.link_inertia_cutoff_hz, dt)
+    c[_s.C_JLC_HP_ALPHA] = lowpass_alpha(fb.link_inertia_highpass_hz, dt)
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0

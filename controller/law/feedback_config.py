@@ -37,7 +37,7 @@ class FeedbackGains:
     #: deflection damping (without that damping the loop with it rings the stick mode: it acts as a
     #: smaller motor inertia, which moves the deflection modes up)
     inertia_comp_kg_m2: float = 0.45
-    acceleration_cutoff_hz: float = 5.0
+    acceleration_cutoff_hz: float = 3.0
     acceleration_source: AccelerationSource = AccelerationSource.MOTOR
     #: damping of the transmission's deflection rate [Nm s/rad] (0 = off):
     #: ``- deflection_damping_Nms_rad * (dq_m - (r_out/r_in) LP[g dq_out])`` on the command, dq_m the
@@ -48,7 +48,7 @@ class FeedbackGains:
     #: The deflection the torque reference asks for is not braked: its rate
     #: ``d/dt LP[tau_in_des - gravity] / plant.stiffness_Nm_rad`` (low-pass at
     #: ``deflection_reference_cutoff_hz`` [Hz]) is subtracted (friction flips, torque reference)
-    deflection_damping_Nms_rad: float = 80.0
+    deflection_damping_Nms_rad: float = 100.0
     deflection_link_cutoff_hz: float = 80.0
     deflection_reference_cutoff_hz: float = 2.0
     #: 0: kp and the deflection damping always act. > 0: only while the joint moves (the
@@ -78,7 +78,7 @@ class FeedbackGains:
     #: the hand's torque less the link's own inertia torque: what the sheath's friction and the motor add to
     #: the link's impedance is divided by ``1 + output_torque_gain``. In the loop only in slip (in stick the
     #: output torque does not follow the motor), where it adds ``k_o LP (R + b H_r) P`` (loop_model)
-    output_torque_gain: float = 2.0
+    output_torque_gain: float = 2.5
     output_torque_cutoff_hz: float = 10.0
     #: a peak on that term: ``LP[e_out] x (1 + output_torque_peak_gain BP)``, BP a unit-gain second-order
     #: band-pass at ``output_torque_peak_hz`` [Hz] with quality ``output_torque_peak_q``: the gain is
@@ -86,8 +86,22 @@ class FeedbackGains:
     #: about ``output_torque_gain`` at the grip and two-mass modes (4-13 Hz), where a higher gain shakes a
     #: firmly held link. 0 = off
     output_torque_peak_gain: float = 1.0
-    output_torque_peak_hz: float = 1.5
+    output_torque_peak_hz: float = 2.0
     output_torque_peak_q: float = 1.5
+    #: link inertia compensation [kg m^2] (0 = off): ``+ link_inertia_comp_kg_m2 (r_in/r_out) A[a]`` on the
+    #: output torque asked for (and so in e_out), ``A[a]`` the link's acceleration from the IMU rate at the motor
+    #: side (differentiated per sample and gated at rest as J_c's with the link source, whatever J_c's source: a
+    #: firmly held link does not accelerate, the motor still does), and faded with kp when that fades. The
+    #: cable then pushes the link's own inertia torque for the hand, which feels ``J_l - link_inertia_comp_kg_m2``
+    #: of it; needs the output torque's gain to hold that torque against the sheath's friction. Below the link's
+    #: inertia (stability.link_inertia_kg_m2, config check); in the loop as positive acceleration feedback
+    #: through the reference path, in stick and slip (loop_model)
+    link_inertia_comp_kg_m2: float = 0.04
+    #: its own first-order low-pass [Hz] and a first-order high-pass [Hz] on that acceleration: a lag at the
+    #: grip modes (4-8 Hz, where a hand holding the link firmly swings it) acts as negative damping there, and
+    #: at the free link's slow mode (0.2-0.5 Hz) the high-pass turns the low-pass's lag into a lead
+    link_inertia_cutoff_hz: float = 3.0
+    link_inertia_highpass_hz: float = 0.3
 
 
 def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: float) -> FeedbackGains:
@@ -100,7 +114,8 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
                        "deflection_damping_Nms_rad", "deflection_link_cutoff_hz", "deflection_reference_cutoff_hz",
                        "rest_gate_cutoff_hz", "deflection_link_lag_compensation", "band_gain", "band_low_hz",
                        "band_high_hz", "output_torque_gain", "output_torque_cutoff_hz",
-                       "output_torque_peak_gain", "output_torque_peak_hz", "output_torque_peak_q"}, p)
+                       "output_torque_peak_gain", "output_torque_peak_hz", "output_torque_peak_q",
+                       "link_inertia_comp_kg_m2", "link_inertia_cutoff_hz", "link_inertia_highpass_hz"}, p)
     source = AccelerationSource[get_choice(c, "acceleration_source", ("motor", "link"), p,
                                            fd.acceleration_source.name.lower()).upper()]
     lag = get_bool(c, "deflection_link_lag_compensation", p, fd.deflection_link_lag_compensation)
@@ -132,7 +147,12 @@ def feedback_from_mapping(c: Mapping[str, Any], p: str, fd: FeedbackGains, nyq: 
         get_float(c, "output_torque_peak_gain", p, fd.output_torque_peak_gain, min_value=0.0, max_value=20.0),
         get_float(c, "output_torque_peak_hz", p, fd.output_torque_peak_hz, min_value=0.0, min_exclusive=True,
                   max_value=0.45 * nyq),
-        get_float(c, "output_torque_peak_q", p, fd.output_torque_peak_q, min_value=0.3, max_value=30.0))
+        get_float(c, "output_torque_peak_q", p, fd.output_torque_peak_q, min_value=0.3, max_value=30.0),
+        get_float(c, "link_inertia_comp_kg_m2", p, fd.link_inertia_comp_kg_m2, min_value=0.0),
+        get_float(c, "link_inertia_cutoff_hz", p, fd.link_inertia_cutoff_hz, min_value=0.0, min_exclusive=True,
+                  max_value=0.45 * nyq),
+        get_float(c, "link_inertia_highpass_hz", p, fd.link_inertia_highpass_hz, min_value=0.0, min_exclusive=True,
+                  max_value=0.45 * nyq))
     if out.output_torque_gain > 0.0 and out.rest_gate_cutoff_hz <= 0.0:
         raise ConfigError(f"{p}.output_torque_gain", "needs rest_gate_cutoff_hz > 0: without the fade the output load "
                           f"cells' noise x the gain reaches the command at rest, got {out.output_torque_gain}")

@@ -125,22 +125,45 @@ def reference_tf(cfg: ControllerConfig) -> TF:
     return _mul(g, (qf[1], _padd(qf[1], np.concatenate(([0.0], qf[0])), -1.0)))
 
 
-def output_torque_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
-    """``k_o Ho (R + K_i + b H_r)`` at ``f_hz``: the measured output torque -> u, negated (``u = -this tau_out``).
+def reference_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """``R + K_i + b H_r`` at ``f_hz``: a term added to the output torque asked for -> u (torques at the motor side).
 
-    ``Ho`` the step's low-pass at ``feedback.output_torque_cutoff_hz``; the term enters the torque
-    reference, so it reaches u through the reference path :func:`reference_tf` ``R``, the PID's integral
-    on the error ``K_i = ki T / (1 - z^-1)`` and the deflection damping's reference rate ``b H_r``
-    (:func:`deflection_reference_filter`). Summed as responses: the expanded polynomial of the sum loses
-    the low frequencies to rounding (poles near z = 1). The gravity model's part of e_out is left out as
-    in the slip points' residual link stiffness (stability.slip_link_stiffness_Nm_rad)."""
+    It reaches u through the reference path :func:`reference_tf` ``R``, the PID's integral on the error
+    ``K_i = ki T / (1 - z^-1)`` and the deflection damping's reference rate ``b H_r``
+    (:func:`deflection_reference_filter`). Summed as responses: the expanded polynomial of the sum loses the
+    low frequencies to rounding (poles near z = 1)."""
     fb, dt = cfg.feedback, cfg.dt_s
     resp = freq_response(reference_tf(cfg), f_hz, dt)
     if cfg.torque_loop != TorqueLoop.LDO and fb.ki_1_s > 0.0:
         resp = resp + freq_response((np.array([fb.ki_1_s * dt]), np.array([1.0, -1.0])), f_hz, dt)
     if fb.deflection_damping_Nms_rad != 0.0:
         resp = resp + fb.deflection_damping_Nms_rad * freq_response(deflection_reference_filter(cfg), f_hz, dt)
-    return fb.output_torque_gain * freq_response(output_torque_filter(cfg), f_hz, dt) * resp
+    return resp
+
+
+def output_torque_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """``k_o Ho (R + K_i + b H_r)`` at ``f_hz``: the measured output torque -> u, negated (``u = -this tau_out``).
+
+    ``Ho`` the step's filter on e_out (:func:`output_torque_filter`); the term enters the torque reference
+    (:func:`reference_response`). The gravity model's part of e_out is left out as in the slip points' residual
+    link stiffness (stability.slip_link_stiffness_Nm_rad)."""
+    return (cfg.feedback.output_torque_gain * freq_response(output_torque_filter(cfg), f_hz, cfg.dt_s)
+            * reference_response(cfg, f_hz))
+
+
+def link_inertia_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """``J_lc (r_in/r_out)^2 A_l (1 + k_o Ho) (R + K_i + b H_r)`` at ``f_hz``: the link's velocity -> u, the link
+    inertia compensation
+    (``feedback.link_inertia_comp_kg_m2``): added to the output torque asked for, so also to e_out, whose gain
+    ``k_o Ho`` it passes. ``A_l`` :func:`link_inertia_filter`. Only in slip (0 when off)."""
+    fb = cfg.feedback
+    if fb.link_inertia_comp_kg_m2 == 0.0:
+        return np.zeros(len(np.atleast_1d(f_hz)), dtype=complex)
+    ratio = cfg.plant.r_in_m / cfg.plant.r_out_m
+    g = 1.0 + fb.output_torque_gain * freq_response(output_torque_filter(cfg), f_hz, cfg.dt_s)
+    a_l = freq_response(link_inertia_filter(cfg), f_hz, cfg.dt_s)
+    return (fb.link_inertia_comp_kg_m2 * ratio**2 * a_l
+            * g * reference_response(cfg, f_hz))
 
 
 def output_torque_filter(cfg: ControllerConfig) -> TF:
@@ -171,6 +194,18 @@ def acceleration_filter(cfg: ControllerConfig, source: AccelerationSource | None
         g /= cfg.plant.r_in_m / cfg.plant.r_out_m
         return np.array([0.0, g, -g]), np.array([1.0, -a])
     return np.array([g, -g]), np.array([1.0, -a])
+
+
+def link_inertia_filter(cfg: ControllerConfig) -> TF:
+    """``A_l(z)``: the link's velocity -> the link inertia compensation's acceleration at the motor side [1/s]:
+    the link source's difference per IMU sample as in :func:`acceleration_filter` (one cycle more delay,
+    ``r_in/r_out``), the step's low-pass at ``feedback.link_inertia_cutoff_hz`` instead of J_c's, and its
+    high-pass ``x - LP[x]`` at ``feedback.link_inertia_highpass_hz``, ``h (1 - z^-1) / (1 - h z^-1)``."""
+    fb = cfg.feedback
+    a = lowpass_alpha(fb.link_inertia_cutoff_hz, cfg.dt_s)
+    h = lowpass_alpha(fb.link_inertia_highpass_hz, cfg.dt_s)
+    g = (1.0 - a) / (cfg.dt_s * cfg.plant.r_in_m / cfg.plant.r_out_m)
+    return _mul((np.array([0.0, g, -g]), np.array([1.0, -a])), (np.array([h, -h]), np.array([1.0, -h])))
 
 
 def deflection_link_filter(cfg: ControllerConfig) -> TF:
@@ -207,7 +242,8 @@ def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
 def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                   f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
-    input, ``L = z^-d (C P - J_c A P_v + b (P_v - (H_l + lead A) P_o) [+ output_torque_response P in slip])`` (the inertia compensation is
+    input, ``L = z^-d (C P - J_c A P_v - link_inertia_response P_v + b (P_v - (H_l + lead A) P_o)
+    [+ output_torque_response P in slip])`` (the inertia compensations are
     positive feedback of the acceleration, so it enters with a minus sign; the deflection-rate
     damping ``b`` is negative feedback of the motor velocity less the link's, :func:`deflection_link_filter`,
     led by ``lead`` (:func:`capstan.controller.law.feedback_config.deflection_link_lead_s`) times the link's
@@ -219,6 +255,9 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
     if jc != 0.0 and np.any(vel[0]):
         pv = plant_discrete(p, cfg.dt_s, delay_cycles, vel)
         loop = loop - jc * freq_response(_mul(acceleration_filter(cfg), pv), f_hz, cfg.dt_s)
+    if cfg.feedback.link_inertia_comp_kg_m2 != 0.0 and p.slip:    # positive feedback of the link's acceleration
+        pvo = plant_discrete(p, cfg.dt_s, delay_cycles, plant_link_velocity_continuous(p))
+        loop = loop - link_inertia_response(cfg, f_hz) * freq_response(pvo, f_hz, cfg.dt_s)
     b = cfg.feedback.deflection_damping_Nms_rad
     if b != 0.0:    # - b (dq_m - H_l dq_out) on the command
         pvm = plant_discrete(p, cfg.dt_s, delay_cycles, plant_velocity_continuous(p))
@@ -290,8 +329,10 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     none = (np.array([0.0]), np.array([1.0]))
     link = fb.acceleration_source == AccelerationSource.LINK
     # J_c's acceleration (its source), and the link's for the lead when J_c takes the motor's
+    jlc = fb.link_inertia_comp_kg_m2 * (cfg.plant.r_in_m / cfg.plant.r_out_m) ** 2 if p.slip else 0.0
     Acc = _Block(acceleration_filter(cfg) if jc != 0.0 or (lead != 0.0 and link) else none)
     AccL = _Block(acceleration_filter(cfg, AccelerationSource.LINK) if lead != 0.0 and not link else none)
+    AccJ = _Block(link_inertia_filter(cfg) if jlc != 0.0 else none)
     v_index = (3 if p.slip else -1) if link else 1      # plant states (q_m, dq_m[, q_o, dq_o])
     b_defl = fb.deflection_damping_Nms_rad
     Hl = _Block(deflection_link_filter(cfg) if b_defl != 0.0 else (np.array([0.0]), np.array([1.0])))
@@ -306,9 +347,9 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     # and the deflection damping's reference rate, which the term moves
     k_o = fb.output_torque_gain if p.slip else 0.0
     Ho = _Block(output_torque_filter(cfg) if k_o != 0.0 else none)
-    Hr = _Block(deflection_reference_filter(cfg) if k_o != 0.0 and b_defl != 0.0 else none)
+    Hr = _Block(deflection_reference_filter(cfg) if (k_o != 0.0 or jlc != 0.0) and b_defl != 0.0 else none)
     sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
-             AccL.n, Bd.n, Ho.n, Hr.n]
+             AccL.n, Bd.n, Ho.n, Hr.n, AccJ.n]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -319,8 +360,12 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         tf_, out[1] = F1.step(xs[1], y)
         dd, out[2] = Dd.step(xs[2], tf_)
         qp, out[3] = QP.step(xs[3], tf_)
-        ho, out[13] = Ho.step(xs[13], y)
-        ref = -k_o * ho                          # the output torque's term in the reference
+        v = float(xs[0][v_index]) if v_index >= 0 else 0.0
+        acc, out[9] = Acc.step(xs[9], v)
+        acc_j, out[15] = AccJ.step(xs[15], float(xs[0][3]) if p.slip else 0.0)
+        t_link = jlc * acc_j                     # the link inertia compensation's term (motor side)
+        ho, out[13] = Ho.step(xs[13], y - t_link)
+        ref = t_link - k_o * ho                  # the output torque's terms in the reference
         bd, out[12] = Bd.step(xs[12], tf_ - ref)      # the band gain on the error: -k_b BP (tau_in - ref)
         if ldo:
             m, out[4] = F2.step(xs[4], float(xs[6][0]))
@@ -334,8 +379,6 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
             u = -(fb.kp * (tf_ - ref) + dd + bd) + integ + ref
         v_ref, out[14] = Hr.step(xs[14], ref)
         u += b_defl * v_ref
-        v = float(xs[0][v_index]) if v_index >= 0 else 0.0
-        acc, out[9] = Acc.step(xs[9], v)
         u += jc * acc
         v_link, out[10] = Hl.step(xs[10], float(xs[0][3]) if p.slip else 0.0)
         acc_l, out[11] = AccL.step(xs[11], float(xs[0][3]) if p.slip else 0.0)

@@ -274,12 +274,13 @@ def analyse(cfg: ControllerConfig, grip: bool = True) -> StabilityReport:
     fb = cfg.feedback
     faded = []
     if fb.rest_gate_cutoff_hz > 0.0 and (fb.kp != 0.0 or fb.deflection_damping_Nms_rad != 0.0 or fb.band_gain != 0.0
-                                        or fb.output_torque_gain != 0.0
+                                        or fb.output_torque_gain != 0.0 or fb.link_inertia_comp_kg_m2 != 0.0
                                         or (inertia_comp_faded(fb) and fb.inertia_comp_kg_m2 != 0.0)):
         for g in FADE_FACTORS:      # the gate's low-pass moves kp, b (and a motor-source J_c) together
             sub = analyse(replace(cfg, feedback=replace(
                 fb, kp=g * fb.kp, rest_gate_cutoff_hz=0.0, deflection_damping_Nms_rad=g * fb.deflection_damping_Nms_rad,
                 band_gain=g * fb.band_gain, output_torque_gain=g * fb.output_torque_gain,
+                link_inertia_comp_kg_m2=g * fb.link_inertia_comp_kg_m2,
                 inertia_comp_kg_m2=(g if inertia_comp_faded(fb) else 1.0) * fb.inertia_comp_kg_m2)), grip=grip and g > 0.0)
             faded.append((g, sub.worst_phase_margin_deg, sub.worst_gain_margin_dB, sub.ok))
     return StabilityReport(pts, st.io_delay_cycles, st.min_phase_margin_deg, st.min_gain_margin_dB, tuple(faded),

@@ -18,7 +18,14 @@ Control law (per cycle, ``k``)::
     tau_fc   = gain * (g(dq_out) eq21(dq_out; c_fc T0) + tau_e)   only when imu_new, held otherwise;
                                                          g: rest gate (feedforward.dead_band_rad_s)
                                                          tau_e: learned effects (controller.learned_effects)
-    tau_in_des = (r_in/r_out) (tau_g + tau_out_ref [+ tau_fc if placement = reference])
+    tau_out_des = tau_g + tau_out_ref + g_fb J_lc (r_in/r_out) A_l[g a]   link inertia compensation
+                                   (feedback.link_inertia_comp_kg_m2; a the link's acceleration at the
+                                   motor side, g as J_c's below, A_l a 1st-order low-pass at
+                                   feedback.link_inertia_cutoff_hz times a 1st-order high-pass at
+                                   feedback.link_inertia_highpass_hz: the strokes' band; the grip modes
+                                   (4-8 Hz) pass less, and the lag that would undamp the free link's
+                                   slow mode (0.2-0.5 Hz) is turned into a lead)
+    tau_in_des = (r_in/r_out) (tau_out_des [+ tau_fc if placement = reference])
     e        = tau_in_des - tau_in
     C e      = kp e - D tau_in     derivative on the measurement only: the reference jumps
                                    at 400 Hz (feedforward) and a derivative on it would kick
@@ -26,8 +33,8 @@ Control law (per cycle, ``k``)::
                                    band-pass over the strokes' band (feedback.band_low_hz-band_high_hz,
                                    shipped 0.3-2 Hz), 0 at DC
     tau_out_des += g_fb k_o LP[e_out]   output torque gain (feedback.output_torque_gain, faded like kp):
-                                   e_out = tau_g + tau_out_ref - r_out (T_up_out - T_lo_out), the hand's
-                                   torque less the link's own inertia torque, LP feedback.output_torque_cutoff_hz;
+                                   e_out = tau_out_des - r_out (T_up_out - T_lo_out), the hand's
+                                   torque less the link's uncompensated inertia torque, LP feedback.output_torque_cutoff_hz;
                                    x (1 + g BP[.]), a peak at feedback.output_torque_peak_hz (g output_torque_peak_gain);
                                    at rest (g_fb = 0) nothing, so load-cell noise stays off the command
     LDO:  tau_m = C e + tau_in_des + d_hat [+ tau_fc if placement = motor]      eq (28)
@@ -152,7 +159,10 @@ C_OUT_ALPHA = 66        # pole of its low-pass (feedback.output_torque_cutoff_hz
 C_R_OUT = 67            # output pulley radius [m]: tau_out = r_out (T_up_out - T_lo_out)
 C_OUT_PEAK_ON = 68      # 1.0 = its peak filter is on (feedback.output_torque_peak_gain > 0)
 C_OUT_PEAK = 69         # 5 coefficients b0 b1 b2 a1 a2 of its peak filter 1 + g BP (ldo.output_peak_biquad)
-N_CFG = 74              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_JLC = 74              # link inertia compensation J_lc [kg m^2] (feedback.link_inertia_comp_kg_m2; 0 = off)
+C_JLC_ALPHA = 75        # pole of its low-pass on the link's acceleration (feedback.link_inertia_cutoff_hz)
+C_JLC_HP_ALPHA = 76     # pole of its high-pass (feedback.link_inertia_highpass_hz)
+N_CFG = 77              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -187,7 +197,9 @@ S_ACC_M = S_VM_PREV + 1    # the motor's filtered acceleration [rad/s^2] (J_c's,
 S_BAND = S_ACC_M + 1       # 2 x 2 biquad states of the band-pass on the error (NaN until the first cycle set them)
 S_OUT_E = S_BAND + 4       # low-passed output torque error [Nm] (NaN until the first cycle set it)
 S_OUT_PEAK = S_OUT_E + 1   # 2 biquad states of its peak filter (NaN until the first cycle set them)
-N_STATE = S_OUT_PEAK + 2
+S_ACC_JLC = S_OUT_PEAK + 2  # the link's acceleration low-passed for the link inertia compensation [rad/s^2]
+S_ACC_JLC_HP = S_ACC_JLC + 1  # ... and its low-pass at the high-pass's corner (high-pass = x - that) [rad/s^2]
+N_STATE = S_ACC_JLC_HP + 1
 
 
 @njit(cache=True)
@@ -217,6 +229,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_ACC] = 0.0
         st[S_ACC_RAW] = 0.0
         st[S_ACC_N] = 0.0
+        st[S_ACC_JLC] = 0.0
+        st[S_ACC_JLC_HP] = 0.0
         st[S_GATE] = 0.0
         st[S_FC_OUT] = 0.0
         # a start in motion: the link-implied velocity starts where the link is (gated as below), so
@@ -241,7 +255,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # sample: it opens only on the second sample in a row outside its lower edge, so one noise
     # sample beyond 4 sigma (once in ~16000) cannot kick the command; onset waits 2.5 ms
     gate = 0.0
-    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_DEFL_B] != 0.0
+    if r.imu_new != 0 and (cfg[C_FF_ON] != 0.0 or cfg[C_JC] != 0.0 or cfg[C_JLC] != 0.0 or cfg[C_DEFL_B] != 0.0
                            or cfg[C_FBG_ON] != 0.0):
         g_now = rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND])
         gate = g_now if st[S_FF_OUT] != 0.0 else 0.0
@@ -264,12 +278,35 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     g_fb = 1.0          # the factor on kp, the band gain, the damping and the output torque's gain:
     if cfg[C_FBG_ON] != 0.0:    # 1, or the faded rest gate
         g_fb = lowpass_step(cfg[C_FBG_ALPHA], st, S_FBG, st[S_GATE])
+    # the accelerations: a low-passed difference quotient, gated on the filter's input by the feedforward's
+    # debounced rest gate on the joint rate, held (0 at rest: one gyro-noise sample beyond 4 sigma would otherwise
+    # pass J_c x the differentiated noise for a sample); opening and closing (a reversal passes the rest band in
+    # 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
+    acc = 0.0       # (r_out / r_in) x the link's, from the IMU rate: J_c's with the link source, J_lc's, the lead's
+    if (cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0) or cfg[C_JLC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:
+        st[S_ACC_N] += 1.0
+        if r.imu_new != 0:
+            st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
+            st[S_V_PREV] = r.dq_out_rad_s
+            st[S_ACC_N] = 0.0
+        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
+    acc_m = 0.0     # the motor's, every cycle (acceleration_source motor): the loop then sees J_m - J_c, which
+    if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] == 0.0:     # without the deflection damping rings the stick mode: faded
+        acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (r.dq_m_rad_s - st[S_VM_PREV]) / cfg[C_DT])
+        st[S_VM_PREV] = r.dq_m_rad_s
     ff_motor = cfg[C_FF_MOTOR] != 0.0
-    tau_out_des = tau_g + r.tau_out_ref_Nm
+    # + g_fb J_lc (r_in / r_out) a: a share of the link's own inertia torque asked of the cable, from the link's
+    # acceleration whatever J_c's source (held by a firm grip, the link does not accelerate; the motor does)
+    tau_link = 0.0
+    if cfg[C_JLC] != 0.0:
+        a_l = lowpass_step(cfg[C_JLC_ALPHA], st, S_ACC_JLC, st[S_GATE] * st[S_ACC_RAW])
+        a_l -= lowpass_step(cfg[C_JLC_HP_ALPHA], st, S_ACC_JLC_HP, a_l)
+        tau_link = g_fb * cfg[C_JLC] * cfg[C_R_RATIO] * a_l
+    tau_out_des = tau_g + r.tau_out_ref_Nm + tau_link
     if cfg[C_OUT_GAIN] != 0.0:  # + g_fb k_o LP[e_out]: the output torque asked for less the measured one,
         # the hand's torque less the link's inertia torque; raised in the reference, it divides what the
         # transmission and the motor add to the link's own impedance by (1 + k_o)
-        e_out = tau_g + r.tau_out_ref_Nm - cfg[C_R_OUT] * (r.T_up_out_N - r.T_lo_out_N)
+        e_out = tau_out_des - cfg[C_R_OUT] * (r.T_up_out_N - r.T_lo_out_N)
         if math.isnan(st[S_OUT_E]):
             st[S_OUT_E] = e_out
         e_lp = lowpass_step(cfg[C_OUT_ALPHA], st, S_OUT_E, e_out)
@@ -309,27 +346,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         tau_raw = fb + tau_in_des
     if ff_motor:
         tau_raw += tau_fc
-    # inertia compensation: g J_c a, a the low-passed difference quotient, g the feedforward's
-    # debounced rest gate on the joint rate, held (0 at rest: one gyro-noise sample beyond 4 sigma
-    # would otherwise pass J_c x the differentiated noise for a sample)
-    # the link's acceleration (S_ACC): J_c's with the link source, and the deflection damping's lead
-    if (cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0) or cfg[C_DEFL_LEAD] != 0.0:
-        st[S_ACC_N] += 1.0
-        if r.imu_new != 0:      # (r_out / r_in) x the link's acceleration, at the motor
-            st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
-            st[S_V_PREV] = r.dq_out_rad_s
-            st[S_ACC_N] = 0.0
-        # the gate acts on the filter's input: opening and closing (a reversal passes the rest band
-        # in 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
-        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
-        if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0:
-            tau_raw += cfg[C_JC] * acc
-    if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] == 0.0:
-        # the motor's acceleration, every cycle: the loop then sees the motor inertia J_m - J_c, which
-        # without the deflection damping rings the stick mode, so it is faded in with kp and b (g_fb)
-        acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (r.dq_m_rad_s - st[S_VM_PREV]) / cfg[C_DT])
-        st[S_VM_PREV] = r.dq_m_rad_s
-        tau_raw += g_fb * cfg[C_JC] * acc_m
+    # inertia compensation: g J_c a (a, acc_m above)
+    if cfg[C_JC] != 0.0:
+        tau_raw += cfg[C_JC] * acc if cfg[C_ACC_LINK] != 0.0 else g_fb * cfg[C_JC] * acc_m
     if cfg[C_DEFL_B] != 0.0:    # damping of the deflection rate: the motor's velocity less the one the
         if r.imu_new != 0:      # link's implies ((r_out / r_in) dq_out, low-passed). At rest the gyro's noise
             # is kept off by g_fb; without it (rest_gate_cutoff_hz 0), by gating the link's rate like J_c. Not

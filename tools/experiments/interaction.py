@@ -110,10 +110,11 @@ CONTROLLERS: dict[str, tuple[str, bool]] = {
 
 #: per controller: the settings that make it what its name says. ``shipped_gravity_only`` is the
 #: uncompensated joint of the shipped (delay-robust) loop: gravity only, no friction feedforward,
-#: no inertia compensation and no output torque gain (it compensates the transmission's friction and
+#: no inertia compensation (motor or link) and no output torque gain (it compensates the transmission's friction and
 #: the motor's inertia as well), so ``shipped_*`` compare like for like (same loop, same delay)
 CONTROLLER_EXTRA: dict[str, dict[str, Any]] = {
-    "shipped_gravity_only": {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}},
+    "shipped_gravity_only": {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0,
+                                          "link_inertia_comp_kg_m2": 0.0}},
 }
 
 #: the uncompensated controller each controller is compared with (same torque loop and gains)
@@ -124,7 +125,7 @@ BASELINE: dict[str, str] = {**{k: "pid_gravity_only" for k in PAPER_CONTROLLERS}
 #: daemon's 2-cycle I/O delay they miss the margins (`capstan experiment loop`)
 LOCKSTEP_GAINS: dict[str, Any] = {"kp": 5.0, "kd_s": 0.05, "derivative_cutoff_hz": 40.0, "ki_1_s": 20.0,
                                   "inertia_comp_kg_m2": 0.0, "deflection_damping_Nms_rad": 0.0, "band_gain": 0.0,
-                                  "rest_gate_cutoff_hz": 0.0, "output_torque_gain": 0.0}
+                                  "rest_gate_cutoff_hz": 0.0, "output_torque_gain": 0.0, "link_inertia_comp_kg_m2": 0.0}
 
 
 def plant_mapping(cond: Condition) -> dict[str, Any]:

@@ -16,6 +16,8 @@ Variants (:data:`TERM_VARIANTS`):
 * ``no_deflection_damping`` (kp kept) / ``no_torque_feedback`` (kp 0, no damping, J_c 0.3: the
   loop before the damping) / ``kp_always_on`` (no fade at rest);
 * ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
+* ``no_link_inertia_comp`` — the link inertia compensation off; ``before_link_inertia_comp`` — the set
+  shipped before it (b 80, J_c's acceleration at 5 Hz, k_o 2 with its peak at 1.5 Hz);
 * ``no_output_peak`` — the output torque gain's peak off; ``inertia_comp_link`` — J_c 0.2 from the
   link's acceleration (b 60, link rate 30 Hz, lead), the set shipped before the peak;
 * ``inertia_comp_motor`` — the inertia compensation from the motor's acceleration (J_c 0.45, faded
@@ -68,10 +70,10 @@ class TermVariant:
 _NO_JC = {"feedback": {"inertia_comp_kg_m2": 0.0}}
 #: the loop before the deflection-rate damping: no torque feedback (kp 0), no damping, J_c 0.3
 _PREV = {"kp": 0.0, "deflection_damping_Nms_rad": 0.0, "rest_gate_cutoff_hz": 0.0, "inertia_comp_kg_m2": 0.3,
-         "acceleration_source": "link",
-         "band_gain": 0.0, "output_torque_gain": 0.0}
+         "acceleration_source": "link", "acceleration_cutoff_hz": 5.0,
+         "band_gain": 0.0, "output_torque_gain": 0.0, "link_inertia_comp_kg_m2": 0.0}
 #: uncompensated: no inertia compensation and no output torque gain (it compensates friction and inertia too)
-_UNCOMPENSATED = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0}}
+_UNCOMPENSATED = {"feedback": {"inertia_comp_kg_m2": 0.0, "output_torque_gain": 0.0, "link_inertia_comp_kg_m2": 0.0}}
 
 #: the inertia compensation from the motor's acceleration (faded in with kp and the damping): J_c 0.45
 #: with b 80 and the link rate at 80 Hz, no lead (the lead is link-acceleration feedback that shares J_c's
@@ -81,11 +83,20 @@ MOTOR_INERTIA_COMP = {"inertia_comp_kg_m2": 0.45, "acceleration_source": "motor"
 #: J_c as shipped before the output torque gain's peak: 0.2 from the link's acceleration, b 60, link rate 30 Hz, lead
 LINK_INERTIA_COMP = {"inertia_comp_kg_m2": 0.2, "acceleration_source": "link", "deflection_damping_Nms_rad": 60.0,
                      "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True}
+#: the set shipped before the link inertia compensation: b 80, J_c's acceleration at 5 Hz, k_o 2 with its peak at
+#: 1.5 Hz, J_lc 0 (PM 51.1 deg, GM 13.3 dB, grip PM 31.7 deg)
+BEFORE_LINK_INERTIA = {"deflection_damping_Nms_rad": 80.0, "acceleration_cutoff_hz": 5.0, "output_torque_gain": 2.0,
+                       "output_torque_peak_hz": 1.5, "link_inertia_comp_kg_m2": 0.0}
 
 TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
-                           " (b 80, link rate 80 Hz) + integral trim + inertia compensation (0.45, motor's)"
-                           " + output torque gain 2 (10 Hz, x2 peak at 1.5 Hz)"),
+                           " (b 100, link rate 80 Hz) + integral trim + inertia compensation (0.45, motor's, 3 Hz)"
+                           " + output torque gain 2.5 (10 Hz, x2 peak at 2 Hz) + link inertia compensation"
+                           " (0.04, 0.3-3 Hz)"),
+    TermVariant("no_link_inertia_comp", "link inertia compensation off, the rest shipped",
+                extra={"feedback": {"link_inertia_comp_kg_m2": 0.0}}),
+    TermVariant("before_link_inertia_comp", "the set before the link inertia compensation (b 80, J_c's 5 Hz, k_o 2,"
+                                            " peak at 1.5 Hz)", extra={"feedback": BEFORE_LINK_INERTIA}),
     TermVariant("no_output_torque_gain", "output torque gain off (the loop before it)",
                 extra={"feedback": {"output_torque_gain": 0.0}}),
     TermVariant("no_band_gain", "band gain off (the loop before it)", extra={"feedback": {"band_gain": 0.0}}),

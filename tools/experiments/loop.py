@@ -132,6 +132,10 @@ def run(args: argparse.Namespace) -> int:
         if fb.output_torque_peak_gain:
             print(f"  x (1 + {fb.output_torque_peak_gain:g} BP): a peak at {fb.output_torque_peak_hz:g} Hz, "
                   f"quality {fb.output_torque_peak_q:g}")
+    if fb.link_inertia_comp_kg_m2:
+        print(f"link inertia compensation {fb.link_inertia_comp_kg_m2:g} kg m^2 x the link's acceleration on the output "
+              f"torque asked for, band-passed {fb.link_inertia_highpass_hz:g}-{fb.link_inertia_cutoff_hz:g} Hz "
+              f"(in the loop at the slip points)")
     print(f"plant range: K_c {st.stiffness_range_Nm_rad} Nm/rad (sheath stick x{st.stick_stiffness_factor:g}), "
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
           f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
