@@ -124,7 +124,9 @@ def main() -> None:
         r = run(effect).targets[Target.TAU_OUT]
         cut = 1.0 - r.rmse_after_Nm / r.rmse_before_Nm
         sel = ", ".join(f"{c.effect} ({'/'.join(c.depends_on)})" for c in r.selected) or "nothing"
-        print(f"{effect:22s} {r.rmse_before_Nm:.4f} -> {r.rmse_after_Nm:.4f} Nm ({-100 * cut:+.1f} %)  selected: {sel}")
+        gain = [c for c in r.selected if c.effect == "drive_gain"]
+        extra = f"  load-cell gain error {100 * gain[0].params['load_cell_gain_error']:+.2f} %" if gain else ""
+        print(f"{effect:22s} {r.rmse_before_Nm:.4f} -> {r.rmse_after_Nm:.4f} Nm ({-100 * cut:+.1f} %)  selected: {sel}{extra}")
 
 
 if __name__ == "__main__":
