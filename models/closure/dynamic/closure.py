@@ -5,7 +5,10 @@ inside that simulation and is fitted jointly with the baseline's parameters
 (:mod:`capstan.models.closure.dynamic.candidates`, :mod:`.in_model`); the residual trace and the greedy
 selection run on the dynamic residual, scored on every held-out sample by the block
 bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechanisms
-(:mod:`capstan.models.closure.exclusion`) are never candidates.
+(:mod:`capstan.models.closure.exclusion`) are never candidates. A candidate confounded with
+the baseline's own parameters (the drive gain: a scaled drive is a baseline with every friction
+torque scaled the other way) is scored by its joint refit with the baseline against the baseline
+refitted without it (:meth:`.in_model.InModelCloser.joint_pair`), not with the baseline held.
 """
 
 from __future__ import annotations
