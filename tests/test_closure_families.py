@@ -107,6 +107,16 @@ def test_injected_effect_is_traced_to_its_signal_and_cuts_heldout_error(effect: 
     assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
 
 
+def test_the_load_cell_gain_is_measured_as_injected() -> None:
+    """The in-model drive gain (joint refit with the baseline) gives the simulation's drive
+    1 / 1.06 of the measured tau_in: the injected error, which the closure never sees."""
+    r = run("load_cell_gain").targets[Target.TAU_OUT]
+    first = r.selected[0]
+    assert first.effect == "drive_gain", [(c.effect, c.improvement) for c in r.selected]
+    assert first.params["load_cell_gain_error"] == pytest.approx(0.06, abs=0.006)
+    assert not first.implausible
+
+
 def main() -> None:
     """Print each case's figures (``python tests/test_closure_families.py``): held-out RMSE
     before and after, and the selected effects in order."""
@@ -114,7 +124,9 @@ def main() -> None:
         r = run(effect).targets[Target.TAU_OUT]
         cut = 1.0 - r.rmse_after_Nm / r.rmse_before_Nm
         sel = ", ".join(f"{c.effect} ({'/'.join(c.depends_on)})" for c in r.selected) or "nothing"
-        print(f"{effect:22s} {r.rmse_before_Nm:.4f} -> {r.rmse_after_Nm:.4f} Nm ({-100 * cut:+.1f} %)  selected: {sel}")
+        gain = [c for c in r.selected if c.effect == "drive_gain"]
+        extra = f"  load-cell gain error {100 * gain[0].params['load_cell_gain_error']:+.2f} %" if gain else ""
+        print(f"{effect:22s} {r.rmse_before_Nm:.4f} -> {r.rmse_after_Nm:.4f} Nm ({-100 * cut:+.1f} %)  selected: {sel}{extra}")
 
 
 if __name__ == "__main__":

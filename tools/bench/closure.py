@@ -88,7 +88,7 @@ def one_length(minutes: float, repeat: int, position_gain: float, long_path: boo
         t3 = time.perf_counter()
         st = {"signals": t1 - t0, **res.timings_s, "report": t3 - t2}
         if res.dynamic is not None:
-            for k in ("screen", "held-out", "joint"):
+            for k in ("screen", "held-out", "joint", "joint-scored"):
                 out["stages"].setdefault(k, []).append(res.dynamic.timings_s.get(k, 0.0))
         for k in STAGES:
             out["stages"][k].append(st.get(k, 0.0))
@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         r["median_total"] = float(np.median(r["total"]))
         rows.append(r)
         stages = "  ".join(f"{k} {med[k]:.1f}" for k in STAGES)
-        stages += " [" + "  ".join(f"{k} {med[k]:.1f}" for k in ("screen", "held-out", "joint") if k in med) + "]"
+        stages += " [" + "  ".join(f"{k} {med[k]:.1f}" for k in ("screen", "held-out", "joint", "joint-scored") if k in med) + "]"
         print(f"{m:5.1f} min {r['samples']:9d} samples: closure {r['median_total']:6.1f} s (median of "
               f"{len(r['total'])}; {stages} s)  one simulation {1e3 * r['simulation']:7.1f} ms "
               f"({1e9 * r['simulation'] / r['samples']:5.1f} ns/sample)  peak RSS {r['rss_MB']:7.0f} MB  "

@@ -7,5 +7,6 @@ with friction as a state, and the effects that act inside that simulation.
   simulation, the empirical curves);
 * :mod:`.in_model` -- scoring, shape search and the joint refit of a candidate with the baseline;
 * :mod:`.long_run` -- the same search on long runs (windows, warm starts);
+* :mod:`.trace` -- the residual trace (which signal the baseline's residual depends on);
 * :mod:`.closure` -- the greedy selection with the held-out bootstrap, as the pipeline calls it.
 """

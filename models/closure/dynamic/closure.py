@@ -5,7 +5,10 @@ inside that simulation and is fitted jointly with the baseline's parameters
 (:mod:`capstan.models.closure.dynamic.candidates`, :mod:`.in_model`); the residual trace and the greedy
 selection run on the dynamic residual, scored on every held-out sample by the block
 bootstrap of :mod:`capstan.models.closure.scoring`. Signals that are not mechanisms
-(:mod:`capstan.models.closure.exclusion`) are never candidates.
+(:mod:`capstan.models.closure.exclusion`) are never candidates. A candidate confounded with
+the baseline's own parameters (the drive gain: a scaled drive is a baseline with every friction
+torque scaled the other way) is scored by its joint refit with the baseline against the baseline
+refitted without it (:meth:`.in_model.InModelCloser.joint_pair`), not with the baseline held.
 """
 
 from __future__ import annotations
@@ -21,12 +24,13 @@ from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
 
 from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
-from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, RISE_MAX, InModelEffect,
-                                                       Refs, catalogue, stiffening_beta, stiffening_k_scale)
+from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX, RISE_MAX,
+                                                       InModelEffect, Refs, catalogue, stiffening_beta,
+                                                       stiffening_k_scale)
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
-from capstan.models.closure.residual_trace import hat_weights, knots_for
+from capstan.models.closure.dynamic.trace import residual_trace
 from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
@@ -80,10 +84,6 @@ ALPHA = 0.05
 N_BOOT_DYN = 2000
 #: empirical in-model curves for this many signals, the ones the residual trace ranks first
 N_EMPIRICAL = 6
-#: knots of the trace's curves
-TRACE_KNOTS = 12
-#: rows per block of the trace's normal equations
-TRACE_BLOCK_ROWS = 262_144
 #: at most this many fresh baseline fits on the realigned channels when a lag is selected
 #: (the lag searched again on each, until it repeats; measured on the torsional unit with
 #: a 20 ms late sensor: 13 -> 17 -> 19 -> 20 ms, the baseline's damping absorbing the rest)
@@ -105,6 +105,9 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
         return {"c_load": float(coef[0] * tau_fc / refs.tau_ref_Nm)}
     if eff.name == "speed_viscous":
         return {"c2_Nms2_rad2": float(coef[0]), "c3_Nms3_rad3": 0.0}
+    if eff.name == "drive_gain":
+        # the simulation is driven by (1 + eps) tau_in: the load cell reads 1 / (1 + eps) - 1 off
+        return {"eps": float(coef[0]), "load_cell_gain_error": float(1.0 / (1.0 + coef[0]) - 1.0), "eps_max": GAIN_MAX}
     if eff.name == "strain_stiffening":
         beta = stiffening_beta(float(coef[0]), float(coef[1]))
         return {"c_node_1_rad2": float(coef[0] / (3.0 * refs.stretch_ref_rad ** 2)), "stretch_ref_rad": refs.stretch_ref_rad,
@@ -122,7 +125,11 @@ def implausible(eff: InModelEffect, coef: np.ndarray) -> str:
     with the baseline held: there the stiffness the cubic adds is only roughly compensated
     (``keep``), and the friction term takes up the rest (measured on the hardening cable, T0 80 N,
     c 3e5: screening beta 10.9, joint refit 5.7 against 4.1 from the cable; on clean runs, seeds
-    3 / 4, the screening fit scored 15 % with beta 11.8)."""
+    3 / 4, the screening fit scored 15 % with beta 11.8). The drive gain at its plausibility
+    bound ``|eps| = GAIN_MAX`` is not a load cell's gain error either."""
+    if eff.name == "drive_gain" and abs(float(coef[0])) >= GAIN_MAX * (1.0 - 1e-6):
+        return (f"drive gain eps {float(coef[0]):+.3g} at its plausibility bound {GAIN_MAX:g}: a load cell "
+                "off by that much is a wiring or calibration fault, not an effect")
     if eff.name == "strain_stiffening":
         rise, f_rise = float(coef[0]), float(coef[1])
         if rise <= 0.0:
@@ -155,73 +162,6 @@ def stretch_ref(fit: DynamicFit, y_train_Nm: np.ndarray) -> tuple[float, float]:
     return e_ref, float(np.mean(e ** 4)) / e2 / e_ref ** 2
 
 
-def _trace_rows(x: np.ndarray, s: np.ndarray, kn: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Column indices and values of the trace design's four non-zeros per row: the hat basis
-    of ``x`` over ``kn`` (:func:`hat_weights`: two neighbouring knots), as is and times ``s``."""
-    k = kn.shape[0]
-    j, w = hat_weights(x, kn)
-    return [j, j + 1, k + j, k + j + 1], [1.0 - w, w, s * (1.0 - w), s * w]
-
-
-def _trace_normal_equations(x: np.ndarray, s: np.ndarray, r: np.ndarray, kn: np.ndarray,
-                            G: np.ndarray, g: np.ndarray) -> None:
-    """Add ``X^T X`` and ``X^T r`` of the trace design of these rows to ``G``, ``g`` (the design
-    has four non-zeros per row: accumulated by index, no ``n x 2k`` matrix)."""
-    k2 = G.shape[0]
-    idx, val = _trace_rows(x, s, kn)
-    acc = np.zeros((k2, k2))
-    for a, (ia, va) in enumerate(zip(idx, val)):
-        g += np.bincount(ia, va * r, minlength=k2)
-        for ib, vb in list(zip(idx, val))[a:]:
-            acc += np.bincount(ia * k2 + ib, va * vb, minlength=k2 * k2).reshape(k2, k2)
-    G += acc + acc.T - np.diag(np.diag(acc))
-
-
-def _trace_curve(x: np.ndarray, s: np.ndarray, kn: np.ndarray, coef: np.ndarray) -> np.ndarray:
-    """The trace design of these rows times ``coef``."""
-    idx, val = _trace_rows(x, s, kn)
-    return sum(v * coef[i] for i, v in zip(idx, val))
-
-
-def residual_trace(ds: DynamicSetup, train: Signals, test: Signals) -> list[dict]:
-    """How much of the dynamic residual each candidate signal explains: a piecewise-linear
-    curve of the signal, additive and friction-like (times tanh(dq / 2 v_rest)), fitted on
-    the training residual and scored on the held-out one. Sorted, best first; excluded
-    signals and the deflection (the elastic state the simulation carries) are not traced."""
-    r_tr = ds.y_train_Nm - ds.pred_train_Nm
-    r_te = ds.y_test_Nm - ds.pred_test_Nm
-    base = _rmse(r_te)
-    s_tr = np.tanh(train.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
-    s_te = np.tanh(test.dq_out_rad_s / (2.0 * train.v_rest_rad_s))
-    out = []
-    for name in train.available():
-        x, xt = train.signal(name), test.signal(name)
-        if name in ds.excluded or name == "deflection" or x is None or xt is None:
-            continue
-        kn = knots_for(x, TRACE_KNOTS)
-        if kn is None:
-            continue
-
-        k2 = 2 * kn.size
-        G = np.zeros((k2, k2))
-        g = np.zeros(k2)
-        for a in range(0, len(train), TRACE_BLOCK_ROWS):
-            b = a + TRACE_BLOCK_ROWS
-            _trace_normal_equations(x[a:b], s_tr[a:b], r_tr[a:b], kn, G, g)
-        G[np.diag_indices_from(G)] += 1e-6 * max(float(np.trace(G)) / G.shape[0], 1e-12)
-        coef = np.linalg.solve(G, g)
-        sse = 0.0
-        for a in range(0, len(test), TRACE_BLOCK_ROWS):
-            b = a + TRACE_BLOCK_ROWS
-            e = r_te[a:b] - _trace_curve(xt[a:b], s_te[a:b], kn, coef)
-            sse += float(np.dot(e, e))
-        imp = 1.0 - math.sqrt(sse / len(test)) / base if base > 0 else 0.0
-        out.append({"signal": name, "explained": max(0.0, 1.0 - (1.0 - imp) ** 2), "improvement": float(imp),
-                    "significant": False})
-    out.sort(key=lambda d: -d["improvement"])
-    return out
-
-
 def _tick(ds: DynamicSetup, stage: str, t0_s: float) -> None:
     ds.timings_s[stage] = ds.timings_s.get(stage, 0.0) + time.perf_counter() - t0_s
 
@@ -232,6 +172,11 @@ def gain_signals(ds: DynamicSetup, train: Signals) -> tuple[str, ...]:
     if ds.fit.spec.form == DrivingForm.TESTBED and train.q_in_rad is not None and "q_in" not in ds.excluded:
         return ("q_in",)
     return ()
+
+
+def offers_gain(ds: DynamicSetup) -> bool:
+    """The constant ``drive_gain`` is offered in the testbed form only (:mod:`.candidates`)."""
+    return ds.fit.spec.form == DrivingForm.TESTBED
 
 
 def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Progress | None = None,
@@ -248,13 +193,14 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                 max(float(np.percentile(np.abs(train.tau_in_Nm), 95)), 1e-6), max(fit.params["tau_fc_Nm"], 1e-3),
                 *stretch_ref(fit, ds.y_train_Nm))
     t0 = time.perf_counter()
-    trace = residual_trace(ds, train, test)
+    trace = residual_trace(ds.y_train_Nm - ds.pred_train_Nm, ds.y_test_Nm - ds.pred_test_Nm, ds.excluded, train, test)
     _tick(ds, "trace", t0)
     emp = [d["signal"] for d in trace][:N_EMPIRICAL]
     # the link form (a hand's rests and breakaways) tries the dwell at the finer grid; the
     # other forms keep the coarse one (their figures and the one-hour benchmark unchanged)
     dwell_grid = DWELL_GRID_FINE if fit.spec.form == DrivingForm.LINK else DWELL_GRID
-    remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train), dwell_grid=dwell_grid)
+    remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train), dwell_grid=dwell_grid,
+                          gain=offers_gain(ds))
     labels = test_blocks(test)
     current = JointFit(np.array(list(fit.params.values())))
     yt, pred_t = ds.y_test_Nm, ds.pred_test_Nm
@@ -271,7 +217,20 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             step += 1
             if progress:
                 progress(step, max(total, step), f"round {rnd}: {eff.name}")
-            if long_run is not None:
+            r_ref = r_before
+            if eff.joint_scored:
+                # confounded with the baseline's parameters: refitted with them, scored against
+                # the best of the refits without it (InModelCloser.joint_pair); screened out
+                # where it does not lower the training error below theirs
+                t0 = time.perf_counter()
+                shape = eff.grid[0]
+                jf, without, imp_train = (long_run or closer).joint_pair(current, eff)
+                screened = imp_train < SCREEN_MIN
+                pt = pred_t if screened else closer.predict(jf)
+                if not screened:
+                    r_ref = min((yt - closer.predict(m) for m in without), key=_rmse)
+                _tick(ds, "joint-scored", t0)
+            elif long_run is not None:
                 t0 = time.perf_counter()
                 shape, jf, imp_train = long_run.candidate(current, eff)
                 _tick(ds, "screen", t0)
@@ -294,13 +253,16 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             else:
                 # Bonferroni over the round's candidates: with every signal tried as an empirical
                 # curve, 5 % per candidate would let one of them through on clean data by chance
-                imp, lo = block_bootstrap(r_before, r_after, labels, n_boot=N_BOOT_DYN,
+                imp, lo = block_bootstrap(r_ref, r_after, labels, n_boot=N_BOOT_DYN,
                                           alpha=ALPHA / len(remaining))
                 rmse, max_err = _rmse(r_after), float(np.max(np.abs(r_after)))
                 significant = bool(lo > 0.0 and imp >= (MATERIAL_EMPIRICAL if eff.empirical else MATERIAL))
             cand = Candidate(eff.name, list(eff.depends_on), Target.TAU_OUT, rnd, dict(shape),
                              _named(eff, shape, coef, tau_fc, refs), rmse, max_err, imp, lo, significant)
-            if screened:
+            if screened and eff.joint_scored:
+                cand.screened_out = (f"screened out: {100 * imp_train:.1f} % lower training RMSE than the baseline "
+                                     f"refitted without it (< {100 * SCREEN_MIN:.1f} %)")
+            elif screened:
                 cand.screened_out = (f"screened out: {100 * imp_train:.1f} % lower RMSE on the training windows "
                                      f"(< {100 * SCREEN_MIN:.1f} %)")
             else:
@@ -324,7 +286,9 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         # the selected effect refitted jointly with the baseline's parameters (kept where the
         # joint fit does not lower the training error: refit returns the held fit then)
         prev = JointFit(current.base, list(current.effects))
-        if long_run is not None:
+        if weff.joint_scored and long_run is None:
+            current = wjf       # already the joint refit
+        elif long_run is not None:
             t0 = time.perf_counter()
             current = long_run.joint(prev, weff, wshape, wjf.effects[-1][2])
             _tick(ds, "joint", t0)

@@ -138,6 +138,42 @@ class LongRunCloser:
         imp = 1.0 - math.sqrt(sse / sse0) if sse0 > 0.0 else 0.0
         return sh, model(c, sh), imp
 
+    def joint_pair(self, current: JointFit, eff: InModelEffect) -> tuple[JointFit, list[JointFit], float]:
+        """(``eff`` at its one shape refitted with the baseline's free parameters, the models
+        without it it is scored against, the first's RMSE improvement over the better of those
+        on the training windows) -- :meth:`InModelCloser.joint_pair` on long runs:
+        ``JOINT_WINDOW_ITERS`` Levenberg-Marquardt steps on the training windows, from the
+        current model with ``eff``'s coefficients at 0, from the current model without ``eff``,
+        and from the joint refit's baseline without ``eff``.
+
+        :raises ModelError: if a simulation fails.
+        """
+        cl = self.win
+        nb = int(np.count_nonzero(cl.free))
+        steps = 0.2 * self._steps(eff)
+
+        def lm(start: JointFit, e: InModelEffect | None) -> tuple[JointFit, float]:
+            k = len(eff.coef_names) if e is not None else 0
+            pf0 = start.base[cl.free]
+            x0 = np.concatenate([pf0, np.zeros(k)])
+            lo = np.concatenate([cl.lo, np.array(eff.lo, float)[:k]])
+            hi = np.concatenate([cl.hi, np.array(eff.hi, float)[:k]])
+            scale = np.concatenate([np.maximum(np.abs(pf0), 1e-6), steps[:k]])
+            abs_step = np.concatenate([np.full(nb, np.nan), steps[:k]])
+
+            def model(x: np.ndarray) -> JointFit:
+                return JointFit(cl._full(x[:nb]), list(current.effects) + ([(e, e.grid[0], x[nb:])] if e else []))
+
+            res = projected_lm(lambda x: cl.predict(model(x), test=False) - cl.y, x0, lo, hi, scale,
+                               JOINT_WINDOW_ITERS, DIFF_STEP, abs_step=abs_step)
+            return model(res.x), 2.0 * res.cost
+
+        jf, sse = lm(current, eff)
+        refs = [lm(current, None), lm(JointFit(jf.base, list(current.effects)), None)]
+        sse_ref = min(e for _, e in refs)
+        imp = 1.0 - math.sqrt(sse / sse_ref) if sse_ref > 0.0 else 0.0
+        return jf, [m for m, _ in refs], imp
+
     def joint(self, current: JointFit, eff: InModelEffect, shape: dict, coef: np.ndarray) -> JointFit:
         """``eff`` at ``shape`` refitted with the baseline's free parameters (windows, then
         every training sample), or with the baseline held where that fits better.
