@@ -35,36 +35,22 @@ from capstan.models.closure.signals import signals_from_tables
 from capstan.models.common.measurement_table import MeasurementTable
 from capstan.models.closure.effects import Target
 from capstan.models.closure.pipeline import close
-from capstan.models.transmission.stick_slip import simulate_unit
 
 from closure_plants import MU, R_M, double_bend, eq23_field, multisine
+from test_closure_inmodel import unit_run
 from tests.independent_distributed import IndepModel, Params
 
 DT = 1e-3
 NOISE_NM = 0.01
-K_OUT, B_OUT = 20.0, 2.0
-TAU_FC, K_PRE, B_VIS = 1.2, 2.0e5, 0.01
+K_OUT = 20.0
 GAIN = 1.06
 EPS_TRUE = 1.0 / GAIN - 1.0
 REFS = Refs(0.0, 1.0, 1.0, 1.0)
 
 
-def _run(seed: int, gain: float, k_out: float, seconds: float = 8.0) -> MeasurementTable:
-    """A testbed run of the torsional unit (the true drive torque u drives k_out, b_out through
-    the sheath friction), the input load cell reading ``gain * u``; the rig rests before it."""
-    t = np.arange(0.0, seconds, DT)
-    rng = np.random.default_rng(seed)
-    u = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for f in (0.3, 0.7, 1.3))
-    u = 4.0 * u / np.max(np.abs(u))
-    n = len(t)
-    x, v, f = np.empty(n), np.empty(n), np.empty(n)
-    assert simulate_unit(t, u, np.array([0, n]), np.array([0.0]), np.array([B_OUT]), np.array([k_out]), K_PRE,
-                         TAU_FC, 1.0, 0.05, B_VIS, x, v, f, np.empty(0)) == n
-    cols = {"t": t, "tau_in": gain * u + NOISE_NM * rng.standard_normal(n),
-            "tau_out": k_out * x + B_OUT * v + NOISE_NM * rng.standard_normal(n),
-            "q_out": x, "dq_out": v + 1e-4 * rng.standard_normal(n), "q_in": x + 1e-3 * np.sin(3.0 * t)}
-    return MeasurementTable(cols, {"environment": {"k_out": k_out, "b_out": B_OUT}, "r_in": 1.0, "r_out": 1.0},
-                            f"unit{seed}")
+def _run(seed: int, gain: float, k_out: float) -> MeasurementTable:
+    """A testbed run of the torsional unit whose input load cell reads ``gain`` x the drive torque."""
+    return unit_run(seed, 0, 8.0, k_out, gain)
 
 
 def _pair(gain: float):

@@ -32,28 +32,31 @@ K_OUT, B_OUT = 20.0, 2.0
 TAU_FC, K_PRE, B_VIS = 1.2, 2.0e5, 0.01
 
 
-def _run(seed: int, lag_samples: int, seconds: float = 8.0) -> MeasurementTable:
-    """A testbed run of the torsional unit (tau_in drives k_out, b_out through the sheath
-    friction), tau_out measured ``lag_samples`` late; the rig rests before the recording."""
+def unit_run(seed: int, lag_samples: int = 0, seconds: float = 8.0, k_out: float = K_OUT,
+             gain: float = 1.0) -> MeasurementTable:
+    """A testbed run of the torsional unit (the drive torque u drives k_out, b_out through the sheath
+    friction), tau_out measured ``lag_samples`` late, the input load cell reading ``gain * u``; the rig
+    rests before the recording."""
     t = np.arange(0.0, seconds, DT)
     rng = np.random.default_rng(seed)
     u = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for f in (0.3, 0.7, 1.3))
     u = 4.0 * u / np.max(np.abs(u))
     n = len(t)
     x, v, f = np.empty(n), np.empty(n), np.empty(n)
-    assert simulate_unit(t, u, np.array([0, n]), np.array([0.0]), np.array([B_OUT]), np.array([K_OUT]), K_PRE,
+    assert simulate_unit(t, u, np.array([0, n]), np.array([0.0]), np.array([B_OUT]), np.array([k_out]), K_PRE,
                          TAU_FC, 1.0, 0.05, B_VIS, x, v, f, np.empty(0)) == n
-    tau_out = K_OUT * x + B_OUT * v
+    tau_out = k_out * x + B_OUT * v
     late = np.concatenate([np.full(lag_samples, tau_out[0]), tau_out[:n - lag_samples]]) if lag_samples else tau_out
-    cols = {"t": t, "tau_in": u + NOISE_NM * rng.standard_normal(n), "tau_out": late + NOISE_NM * rng.standard_normal(n),
+    cols = {"t": t, "tau_in": gain * u + NOISE_NM * rng.standard_normal(n),
+            "tau_out": late + NOISE_NM * rng.standard_normal(n),
             "q_out": x, "dq_out": v + 1e-4 * rng.standard_normal(n), "q_in": x + 1e-3 * np.sin(3.0 * t)}
-    return MeasurementTable(cols, {"environment": {"k_out": K_OUT, "b_out": B_OUT}, "r_in": 1.0, "r_out": 1.0},
+    return MeasurementTable(cols, {"environment": {"k_out": k_out, "b_out": B_OUT}, "r_in": 1.0, "r_out": 1.0},
                             f"unit{seed}")
 
 
 @pytest.fixture(scope="module")
 def late_runs():
-    sig = signals_from_tables([_run(1, 20), _run(2, 20)])
+    sig = signals_from_tables([unit_run(1, 20), unit_run(2, 20)])
     return sig.take(sig.run_id == 0), sig.take(sig.run_id == 1)
 
 

@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from capstan.controller.law.config import ControllerConfig
-from capstan.controller.law.core import Controller
 from capstan.controller.law.loop_model import PlantPoint, closed_loop_poles, link_inertia_response
 from capstan.controller.law.stability import check_margins
 from capstan.models.common.errors import ConfigError
 from test_deflection_damping import _linear
-from test_output_torque_gain import LINEAR, _feed, _run_slip
+from test_output_torque_gain import LINEAR, _pulse_response, _run_slip, felt_inertia, rest_run
 
 #: the shipped link inertia compensation (config/controller.yaml)
 J_LC, F_LP, F_HP = 0.04, 3.0, 0.3
@@ -25,21 +24,9 @@ LINEAR_JLC = {**LINEAR, "output_torque_gain": 2.5, "output_torque_peak_gain": 1.
               "link_inertia_comp_kg_m2": J_LC, "link_inertia_cutoff_hz": F_LP, "link_inertia_highpass_hz": F_HP}
 
 
-def _link_pulse_response(cfg: ControllerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The compiled step's command for a one-cycle pulse of the link's rate (IMU every cycle, 0.01 rad/s at
-    cycle 300, fade open) per rad/s, as a frequency response over 0.05-100 Hz (DFT over 2^15 cycles)."""
-    ctl = Controller(cfg)
-    r = ctl.record[0]
-    n, k0 = 2 ** 15, 300
-    u = np.zeros(n)
-    for k in range(n):
-        _feed(r, k, cfg.dt_s)
-        if k == k0:
-            r["dq_out_rad_s"] = 0.01
-        u[k] = ctl.step()
-    f = np.fft.rfftfreq(n, cfg.dt_s)
-    sel = (f > 0.05) & (f < 100.0)
-    return f[sel], np.fft.rfft(u)[sel] / (0.01 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
+def _link_pulse(r: np.ndarray) -> float:
+    r["dq_out_rad_s"] = 0.01        # one IMU sample of the link's rate, 0.01 rad/s
+    return 0.01
 
 
 def test_the_analysis_link_inertia_path_is_the_steps():
@@ -49,8 +36,8 @@ def test_the_analysis_link_inertia_path_is_the_steps():
     fed every cycle here, the step is that cycle earlier. It is more than 3x larger at 1 Hz than at 8 Hz
     (the band-pass: the strokes' band, not the grip modes)."""
     cfg = _linear(LINEAR_JLC)
-    f, h_on = _link_pulse_response(cfg)
-    _, h_off = _link_pulse_response(_linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": 0.0}))
+    f, h_on = _pulse_response(cfg, _link_pulse)
+    _, h_off = _pulse_response(_linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": 0.0}), _link_pulse)
     h_lm = link_inertia_response(cfg, f) * np.exp(2j * np.pi * f * cfg.dt_s)
     assert np.max(np.abs((h_on - h_off) - h_lm) / np.abs(h_lm)) < 1e-3
     at = [np.argmin(np.abs(f - x)) for x in (1.0, 8.0)]
@@ -63,19 +50,9 @@ def test_the_link_feels_less_of_itself():
     compensated inertia: J_lc x |A_l(1 Hz)| (0.91 for the band-pass) within 35 %, and it stays above the
     link's own inertia less J_lc (the compensation takes what it says, not more)."""
     p = PlantPoint(240.0, 0.73, 0.5, slip=True, link_stiffness_Nm_rad=0.945)
-    n, f = 16000, 1.0
-    t = np.arange(n) * 1e-3
-    tau = 0.5 * np.sin(2 * np.pi * f * t)
-
-    def felt(j_lc: float) -> float:
-        cfg = _linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": j_lc})
-        x = _run_slip(cfg, p, n, tau, kick_rad_s=0.0)
-        acc = np.gradient(x[:, 3], 1e-3)
-        w = slice(6000, n)
-        ref = np.exp(-2j * np.pi * f * t[w])
-        return abs(np.sum(tau[w] * ref)) / abs(np.sum(acc[w] * ref))
-
-    j0, j1 = felt(0.0), felt(J_LC)
+    f = 1.0
+    j0 = felt_inertia(_linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": 0.0}), p, f)
+    j1 = felt_inertia(_linear(LINEAR_JLC), p, f)
     gain = 1.0 / np.sqrt(1.0 + (f / F_LP) ** 2) * (f / F_HP) / np.sqrt(1.0 + (f / F_HP) ** 2)
     assert (j0 - j1) == pytest.approx(J_LC * gain, rel=0.35), (j0, j1)
     assert j1 > p.link_inertia_kg_m2 - J_LC
@@ -94,20 +71,7 @@ def test_decays_with_a_kick_at_a_slip_point():
 def test_nothing_at_rest():
     """At rest (gyro noise inside the rest band, load-cell noise on all four cells) the rest gate keeps the
     differentiated gyro noise off the command: bit-identical to J_lc 0."""
-    def run(j_lc: float) -> np.ndarray:
-        ctl = Controller(ControllerConfig.from_mapping({"feedback": {"link_inertia_comp_kg_m2": j_lc}}))
-        r = ctl.record[0]
-        rng = np.random.default_rng(12)
-        out = np.zeros(3000)
-        for k in range(3000):
-            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
-            r["T_up_in_N"], r["T_lo_in_N"], r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + rng.normal(0, 0.3, 4)
-            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
-            r["q_out_rad"] = 0.3
-            r["dq_out_rad_s"] = rng.normal(0.0, 2e-3)
-            out[k] = ctl.step()
-        return out
-    assert np.array_equal(run(J_LC), run(0.0))
+    assert np.array_equal(rest_run({"link_inertia_comp_kg_m2": J_LC}, 12), rest_run({"link_inertia_comp_kg_m2": 0.0}, 12))
 
 
 def test_start_up_check_on_the_link_inertia_compensation():

@@ -9,6 +9,7 @@ distributed rig, and nothing at rest."""
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -38,24 +39,31 @@ def _feed(r: np.ndarray, k: int, dt: float) -> None:
     r["dq_m_rad_s"] = r["dq_out_rad_s"] = r["tau_out_ref_Nm"] = 0.0
 
 
-def _pulse_response(cfg: ControllerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The compiled step's command for a one-cycle pulse of measured output torque (tau_out =
-    r_out (T_up_out - T_lo_out) = 0.1 Nm at cycle 300, fade open), as a frequency response per Nm
-    of the pulse: ``(f [Hz], H)`` over 0.05-100 Hz (DFT over 2^15 cycles, long enough for the
-    0.3 Hz band to decay)."""
+def _output_pulse(r: np.ndarray) -> float:
+    r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + 1.25, 150.0 - 1.25
+    return 0.1
+
+
+def _pulse_response(cfg: ControllerConfig, pulse: Callable[[np.ndarray], float] = _output_pulse
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled step's command for a one-cycle pulse (default: of measured output torque, tau_out =
+    r_out (T_up_out - T_lo_out) = 0.1 Nm) at cycle 300, fade open, as a frequency response per unit of
+    the pulse: ``(f [Hz], H)`` over 0.05-100 Hz (DFT over 2^15 cycles, long enough for the 0.3 Hz band to
+    decay). ``pulse`` sets the record's fields for that cycle and returns the pulse's size."""
     ctl = Controller(cfg)
     r = ctl.record[0]
     n, k0 = 2 ** 15, 300
     u = np.zeros(n)
+    size = 1.0
     for k in range(n):
         _feed(r, k, cfg.dt_s)
         if k == k0:
-            r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + 1.25, 150.0 - 1.25
+            size = pulse(r)
         u[k] = ctl.step()
     assert np.all(u[:k0] == 0.0)        # the fade had opened: nothing before the pulse
     f = np.fft.rfftfreq(n, cfg.dt_s)
     sel = (f > 0.05) & (f < 100.0)
-    return f[sel], np.fft.rfft(u)[sel] / (0.1 * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
+    return f[sel], np.fft.rfft(u)[sel] / (size * np.exp(-2j * np.pi * f[sel] * k0 * cfg.dt_s))
 
 
 def test_the_analysis_output_path_is_the_steps():
@@ -159,48 +167,55 @@ def test_decays_at_the_slip_points_in_the_compiled_step(p):
     assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
 
 
+def felt_inertia(cfg: ControllerConfig, p: PlantPoint, f_hz: float, n: int = 16000) -> float:
+    """The inertia the free link feels [kg m^2]: a torque of 0.5 Nm at ``f_hz`` on the link of the slip plant
+    closed with the compiled step (:func:`_run_slip`), |tau| / |link acceleration| at ``f_hz`` over the last
+    10 s of ``n`` cycles."""
+    t = np.arange(n) * 1e-3
+    tau = 0.5 * np.sin(2 * np.pi * f_hz * t)
+    x = _run_slip(cfg, p, n, tau, kick_rad_s=0.0)
+    acc = np.gradient(x[:, 3], 1e-3)
+    w = slice(n - 10000, n)
+    ref = np.exp(-2j * np.pi * f_hz * t[w])
+    return abs(np.sum(tau[w] * ref)) / abs(np.sum(acc[w] * ref))
+
+
 def test_the_link_feels_less_of_the_motor():
     """A 1 Hz torque on the free link (slip, K_c 240, J_m 0.73): the inertia it feels,
     |tau| / |link acceleration|, is between the link's own (J_l with its residual gravity stiffness
     and damping: the limit of an ideal output torque loop, which makes tau_out = tau_g) and what it
     feels without the gain; the motor's share (J_felt - the link's) is at least 3x smaller with k_o 2 (the ideal output loop: 1 + k_o)."""
     p = PlantPoint(240.0, 0.73, 0.5, slip=True, link_stiffness_Nm_rad=0.945)
-    n, f = 16000, 1.0
-    t = np.arange(n) * 1e-3
-    tau = 0.5 * np.sin(2 * np.pi * f * t)
-
-    def felt(k_o: float) -> float:
-        cfg = _linear({**LINEAR, "output_torque_gain": k_o})
-        x = _run_slip(cfg, p, n, tau, kick_rad_s=0.0)
-        acc = np.gradient(x[:, 3], 1e-3)
-        w = slice(6000, n)          # the last 10 periods
-        ref = np.exp(-2j * np.pi * f * t[w])
-        return abs(np.sum(tau[w] * ref)) / abs(np.sum(acc[w] * ref))
-
-    j0, j6 = felt(0.0), felt(K_O)      # 0.273 and 0.185 kg m^2 against 0.146 (k_o 6 at 3 Hz: 0.163)
+    f = 1.0
+    j0 = felt_inertia(_linear({**LINEAR, "output_torque_gain": 0.0}), p, f)
+    j6 = felt_inertia(_linear({**LINEAR, "output_torque_gain": K_O}), p, f)  # 0.273, 0.185 against 0.146
     w = 2 * np.pi * f       # the link alone: |-J_l w^2 + j b_l w + k_g| / w^2 (k_g the residual gravity stiffness)
     jl = abs(-p.link_inertia_kg_m2 * w ** 2 + 1j * p.link_damping_Nms_rad * w + p.link_stiffness_Nm_rad) / w ** 2
     assert jl < j6 < j0
     assert (j6 - jl) < (j0 - jl) / 3.0
 
 
+def rest_run(feedback: dict, seed: int) -> np.ndarray:
+    """The compiled step's commands over 3 s at rest: gyro noise (2 mrad/s) inside the rest band, IMU at
+    400 Hz, load-cell noise (0.3 N) on all four cells, ``feedback`` over the config defaults."""
+    ctl = Controller(ControllerConfig.from_mapping({"feedback": feedback}))
+    r = ctl.record[0]
+    rng = np.random.default_rng(seed)
+    out = np.zeros(3000)
+    for k in range(3000):
+        r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+        r["T_up_in_N"], r["T_lo_in_N"], r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + rng.normal(0, 0.3, 4)
+        r["imu_new"] = 1 if k % 5 in (0, 3) else 0
+        r["q_out_rad"] = 0.3
+        r["dq_out_rad_s"] = rng.normal(0.0, 2e-3)
+        out[k] = ctl.step()
+    return out
+
+
 def test_nothing_at_rest():
     """At rest (gyro noise inside the rest band, load-cell noise on all four cells) the fade keeps
     the term off the command: bit-identical to k_o 0."""
-    def run(k_o: float) -> np.ndarray:
-        ctl = Controller(ControllerConfig.from_mapping({"feedback": {"output_torque_gain": k_o}}))
-        r = ctl.record[0]
-        rng = np.random.default_rng(11)
-        out = np.zeros(3000)
-        for k in range(3000):
-            r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
-            r["T_up_in_N"], r["T_lo_in_N"], r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + rng.normal(0, 0.3, 4)
-            r["imu_new"] = 1 if k % 5 in (0, 3) else 0
-            r["q_out_rad"] = 0.3
-            r["dq_out_rad_s"] = rng.normal(0.0, 2e-3)
-            out[k] = ctl.step()
-        return out
-    assert np.array_equal(run(K_O), run(0.0))
+    assert np.array_equal(rest_run({"output_torque_gain": K_O}, 11), rest_run({"output_torque_gain": 0.0}, 11))
 
 
 def _grip_point(k_h: float, b_h: float, k_c: float, j_m: float) -> PlantPoint:
