@@ -38,11 +38,10 @@ from capstan.models.closure.augmented import Augmented, AugmentedFit, Realign, T
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Target, catalogue_for
 from capstan.models.closure.identification import BaselineFit, ModelKind, fit_baseline, named_params
 from capstan.models.closure.residual_trace import describe_curve, empirical_candidates, is_empirical
-from capstan.models.closure.scoring import (BLOCK_S, MATERIAL, N_BOOT, Candidate, TargetResult, _rmse,  # noqa: F401
-                                            block_bootstrap, test_blocks)
+from capstan.models.closure.scoring import (BLOCK_S, MATERIAL, N_BOOT, PREFER_CATALOGUE, Candidate,  # noqa: F401
+                                            TargetResult, _rmse, block_bootstrap, select_winner, test_blocks)
 from capstan.models.closure.signals import Signals
 
-PREFER_CATALOGUE = 0.7
 MAX_ROUNDS = 4
 MAX_SAMPLES = 20000
 #: at most this many consecutive training samples for the latency search
@@ -150,15 +149,7 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
         sig_c = [c for c in tried if c.significant]
         if not sig_c:
             break
-        cat = [c for c in sig_c if not is_empirical(c.spec)]
-        emp = [c for c in sig_c if is_empirical(c.spec)]
-        best_cat = max(cat, key=lambda c: c.improvement) if cat else None
-        best_emp = max(emp, key=lambda c: c.improvement) if emp else None
-        if best_cat is not None and (best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement):
-            win = best_cat
-        else:
-            win = best_emp
-        assert win is not None
+        win = select_winner(sig_c, lambda c: is_empirical(c.spec))
         res.selected.append(win)
         wfit, wrealign, wridge, wshape = fits[id(win)]
         assert win.spec is not None

@@ -6,12 +6,16 @@ never crossing a run); a block bootstrap (``N_BOOT`` resamples of blocks) of
 ``1 - sqrt(sum SSE_after / sum SSE_before)`` gives a one-sided 95 % lower bound. A
 candidate is *significant* when that bound is > 0 and the point improvement is at
 least ``MATERIAL`` (5 % lower held-out RMSE).
+
+Catalogue first (:func:`select_winner`, both closures): of the significant candidates the best catalogue effect
+is taken if it achieves at least ``PREFER_CATALOGUE`` of the best empirical improvement.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -121,3 +125,25 @@ def block_bootstrap(r_before: np.ndarray, r_after: np.ndarray, labels: np.ndarra
     idx = rng.integers(0, nb, size=(n_boot, nb))
     boots = 1.0 - np.sqrt(sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
     return point, float(np.quantile(boots, alpha))
+
+
+#: a catalogue candidate is preferred when it achieves this share of the best empirical one
+PREFER_CATALOGUE = 0.7
+
+
+def select_winner(significant: list[Candidate], empirical: Callable[[Candidate], bool]) -> Candidate:
+    """The round's winner among ``significant`` (not empty): the best catalogue candidate if its improvement is
+    at least ``PREFER_CATALOGUE`` x the best empirical one's (``empirical`` tells which is which), else that
+    empirical one.
+
+    :raises ValueError: if ``significant`` is empty."""
+    if not significant:
+        raise ValueError("select_winner needs at least one significant candidate")
+    cat = [c for c in significant if not empirical(c)]
+    emp = [c for c in significant if empirical(c)]
+    best_cat = max(cat, key=lambda c: c.improvement) if cat else None
+    best_emp = max(emp, key=lambda c: c.improvement) if emp else None
+    if best_cat is not None and (best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement):
+        return best_cat
+    assert best_emp is not None
+    return best_emp

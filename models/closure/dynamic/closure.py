@@ -31,7 +31,8 @@ from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.dynamic.trace import residual_trace
-from capstan.models.closure.scoring import MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, test_blocks
+from capstan.models.closure.scoring import (MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, select_winner,
+                                           test_blocks)
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
 
@@ -73,8 +74,6 @@ def setup(train: Signals, test: Signals) -> DynamicSetup:
                         target_channel(test, tgt), excluded_signals(train, tgt, fit.spec.driving))
 
 
-#: a catalogue candidate is preferred when it achieves this share of the best empirical one
-PREFER_CATALOGUE = 0.7
 MAX_ROUNDS = 3
 #: an empirical in-model curve (2 x 5 coefficients, a description, not a mechanism) must cut
 #: the held-out RMSE by this much; a catalogued form (1-2 coefficients) by MATERIAL (5 %)
@@ -274,13 +273,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         sig_c = [c for c in tried if c.significant]
         if not sig_c:
             break
-        cat = [c for c in sig_c if not fits[id(c)][2].empirical]
-        emp = [c for c in sig_c if fits[id(c)][2].empirical]
-        best_cat = max(cat, key=lambda c: c.improvement) if cat else None
-        best_emp = max(emp, key=lambda c: c.improvement) if emp else None
-        win = best_cat if best_cat is not None and (
-            best_emp is None or best_cat.improvement >= PREFER_CATALOGUE * best_emp.improvement) else best_emp
-        assert win is not None
+        win = select_winner(sig_c, lambda c: fits[id(c)][2].empirical)
         res.selected.append(win)
         wjf, _, weff, wshape = fits[id(win)]
         # the selected effect refitted jointly with the baseline's parameters (kept where the
