@@ -282,14 +282,16 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     # debounced rest gate on the joint rate, held (0 at rest: one gyro-noise sample beyond 4 sigma would otherwise
     # pass J_c x the differentiated noise for a sample); opening and closing (a reversal passes the rest band in
     # 1-3 IMU samples) reach the command through the low-pass, not as a step of J_c x a
-    acc = 0.0       # (r_out / r_in) x the link's, from the IMU rate: J_c's with the link source, J_lc's, the lead's
-    if (cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0) or cfg[C_JLC] != 0.0 or cfg[C_DEFL_LEAD] != 0.0:
+    acc = 0.0       # (r_out / r_in) x the link's, from the IMU rate: J_c's with the link source, the lead's
+    acc_lp = (cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] != 0.0) or cfg[C_DEFL_LEAD] != 0.0   # J_lc filters the raw one
+    if acc_lp or cfg[C_JLC] != 0.0:
         st[S_ACC_N] += 1.0
         if r.imu_new != 0:
             st[S_ACC_RAW] = (r.dq_out_rad_s - st[S_V_PREV]) / (st[S_ACC_N] * cfg[C_DT] * cfg[C_R_RATIO])
             st[S_V_PREV] = r.dq_out_rad_s
             st[S_ACC_N] = 0.0
-        acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
+        if acc_lp:
+            acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
     acc_m = 0.0     # the motor's, every cycle (acceleration_source motor): the loop then sees J_m - J_c, which
     if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] == 0.0:     # without the deflection damping rings the stick mode: faded
         acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (r.dq_m_rad_s - st[S_VM_PREV]) / cfg[C_DT])
