@@ -66,7 +66,10 @@ def test_start_up_sdo_conversation_exact_bytes(setup):
         sdo_upload(0x1000, 0),                        # device type: the drive has booted
         sdo_upload(0x6041, 0),                        # statusword: not in FAULT
         sdo_upload(0x6502, 0),                        # supported modes
-        sdo_upload(0x6076, 0),                        # rated torque [mNm]
+        # units: encoder resolution, gear ratio, SI unit position/velocity, rated torque [mNm]
+        sdo_upload(0x608F, 1), sdo_upload(0x608F, 2), sdo_upload(0x6091, 1), sdo_upload(0x6091, 2),
+        sdo_upload(0x60A8, 0), sdo_upload(0x60A9, 0),
+        sdo_upload(0x6076, 0),
         sdo_upload(0x1014, 0),                        # EMCY COB-ID
         # RPDO1: disable, SYNC type 1, mapping controlword + target torque, enable
         sdo_upload(0x1400, 1), d(0x1400, 1, 0x80000200 + n, 4), d(0x1400, 2, 1, 1),
@@ -106,7 +109,15 @@ def test_start_up_sdo_conversation_exact_bytes(setup):
     assert set(rest) == {sdo_upload(0x6041, 0), sdo_upload(0x6061, 0)}
     responses = spy.ids(0x580 + NODE_ID)
     assert len(responses) == len(requests) and all(r[0] != 0x80 for r in responses)  # no abort
-    assert responses[3] == bytes([0x43, 0x76, 0x60, 0x00, 0xD0, 0x07, 0x00, 0x00])      # 2000 mNm
+    # the unit reads, byte for byte: 2^17 increments per 1 motor revolution, gear 1:1,
+    # position in increments (0x00B50000), velocity in increments per second (0x00B50300)
+    assert responses[3:9] == [bytes([0x43, 0x8F, 0x60, 0x01, 0x00, 0x00, 0x02, 0x00]),
+                              bytes([0x43, 0x8F, 0x60, 0x02, 0x01, 0x00, 0x00, 0x00]),
+                              bytes([0x43, 0x91, 0x60, 0x01, 0x01, 0x00, 0x00, 0x00]),
+                              bytes([0x43, 0x91, 0x60, 0x02, 0x01, 0x00, 0x00, 0x00]),
+                              bytes([0x43, 0xA8, 0x60, 0x00, 0x00, 0x00, 0xB5, 0x00]),
+                              bytes([0x43, 0xA9, 0x60, 0x00, 0x00, 0x03, 0xB5, 0x00])]
+    assert responses[9] == bytes([0x43, 0x76, 0x60, 0x00, 0xD0, 0x07, 0x00, 0x00])      # 2000 mNm
     assert spy.ids(0x000) == [bytes([0x80, n]), bytes([0x01, n])]   # pre-operational, then start
     assert motor.rated_torque_Nm == 2.0
     assert motor.state == State402.OPERATION_ENABLED
@@ -207,7 +218,7 @@ def test_missing_required_object_is_a_clear_error(setup, tmp_path):
 
 def test_rated_torque_contradicting_the_drive_is_refused(setup):
     rig, motor, _ = setup(rated_torque_Nm=2.0, motor_rated_torque_Nm=3.0)
-    with pytest.raises(ConfigError, match="0x6076 = 2.0 Nm"):
+    with pytest.raises(ConfigError, match="0x6076 = 2000 mNm: 2 Nm; the config states 3 Nm"):
         motor.start()
 
 

@@ -59,7 +59,8 @@ def test_load_cell_tensions_rebuild_bit_exactly_from_the_bridge_signals() -> Non
 
 def test_drive_feedback_rebuilds_bit_exactly_from_counts_units_and_per_mille() -> None:
     cfg = MotorConfig.from_mapping({"node_id": 1, "eds": "capstan_drive.eds", "rated_torque_Nm": 19.7,
-                                    "gear_ratio": 7.3, "encoder_counts_per_rev": 131072})
+                                    "gear_ratio": 7.3, "encoder_counts_per_rev": 131072,
+                                    "velocity_units_per_rev_s": 131072})
     motor = CanopenMotor(cfg)
     motor._cobs = (0x181, 0x281, 0x81, 0x701, 0)
     motor._direct = True                                     # poll-time reads of an idle bus

@@ -20,6 +20,9 @@ from capstan.controller.law.records import DERIVED_FROM_WIRE, LOG_FLOAT32_FIELDS
 from capstan.controller.runtime.link_report import LINK_STATS_FIELDS
 from capstan.controller.runtime.timing import WindowReport
 
+#: metadata record of the units the CiA 402 drive reported at start-up (drivers/canopen/drive_units.py)
+DRIVE_UNITS_META = "capstan.drive_units"
+
 #: one timing-statistics record per window (``/capstan/stats``), µs unless noted
 STATS_DTYPE = np.dtype([
     ("t_s", "f8"), ("cycles", "u4"), ("late", "u4"), ("missed_total", "u8"), ("dropped_total", "u8"),
@@ -170,7 +173,8 @@ def wire_capable(devices: Any) -> bool:
 
 def send_derivations(sink: Any, devices: Any) -> None:
     """Send the started devices' wire -> SI derivations (and the loop clock's) to the log
-    as the ``capstan.derivations`` metadata record."""
+    as the ``capstan.derivations`` metadata record, and the units the drive reported as
+    ``capstan.drive_units``."""
     from capstan.controller.log.mcap_log import DERIVATIONS_META
     from capstan.models.common.wire_units import NS_TO_S, Derivation
     items = [Derivation("t_s", "t_ns", NS_TO_S)]
@@ -181,6 +185,9 @@ def send_derivations(sink: Any, devices: Any) -> None:
     put = getattr(sink, "metadata", None)
     if callable(put):
         put(DERIVATIONS_META, {"derivations": [d.to_json() for d in items]})
+        units = getattr(devices.motor, "drive_units", None)
+        if callable(getattr(units, "to_json", None)):   # what the drive reported at start-up
+            put(DRIVE_UNITS_META, units.to_json())
 
 
 def newest_log(out_dir: Path, prefix: str = "capstan", since_s: float = 0.0) -> Path | None:

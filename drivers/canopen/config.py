@@ -6,7 +6,6 @@ See ``config/motor.yaml`` for a documented example. Every invalid value raises
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -45,10 +44,15 @@ class MotorConfig:
     :ivar master_node_id: node id whose heartbeat the daemon produces (watched by the drive).
     :ivar eds: path of the drive's EDS/DCF.
     :ivar mode: ``cst`` (mode 10) or ``profile_torque`` (mode 4, only if 0x6502 lists it).
-    :ivar encoder_counts_per_rev: increments of 0x6064 per motor revolution.
-    :ivar velocity_units_per_rev_s: units of 0x606C per motor rev/s (counts/s: = encoder counts; rpm: 60).
-    :ivar gear_ratio: motor revolutions per revolution of the reported shaft.
-    :ivar rated_torque_Nm: rated torque (unit of 0x6071/0x6077 is 1/1000 of it); None: read 0x6076.
+    :ivar encoder_counts_per_rev: units of 0x6064 per motor revolution; None: the drive's
+        (0x60A8/0x608F/0x6091, read at start-up, :mod:`~capstan.drivers.canopen.drive_units`).
+        A stated value is checked against the drive's and a difference refused.
+    :ivar velocity_units_per_rev_s: units of 0x606C per motor rev/s (increments/s: the encoder
+        counts; rpm: 60); None: the drive's (0x60A9/0x608F/0x6091), else checked as above.
+    :ivar gear_ratio: motor revolutions per revolution of the reported shaft; None: the drive's
+        0x6091 (1 where it has none), else checked against it.
+    :ivar rated_torque_Nm: rated torque (unit of 0x6071/0x6077 is 1/1000 of it); None: read 0x6076,
+        else checked against it.
     :ivar max_torque_Nm: commanded torque is clamped to +-this [Nm].
     :ivar cycle_period_s: control cycle = SYNC period = interpolation period 0x60C2 [s].
     :ivar heartbeat_period_s: period of the daemon's own heartbeat [s].
@@ -74,9 +78,9 @@ class MotorConfig:
     master_node_id: int = 127
     eds: str = str(DATA_DIR / "capstan_drive.eds")
     mode: str = "cst"
-    encoder_counts_per_rev: int = 1 << 17
-    velocity_units_per_rev_s: float = float(1 << 17)
-    gear_ratio: float = 1.0
+    encoder_counts_per_rev: int | None = None
+    velocity_units_per_rev_s: float | None = None
+    gear_ratio: float | None = None
     rated_torque_Nm: float | None = None
     max_torque_Nm: float = 30.0
     cycle_period_s: float = 0.001
@@ -89,16 +93,6 @@ class MotorConfig:
     quick_stop_option: int = 2
     shutdown_option: int = 0
     fault_reset_at_start: bool = False
-
-    @property
-    def position_rad_per_count(self) -> float:
-        """Scale of 0x6064 [rad/increment]."""
-        return 2 * math.pi / self.encoder_counts_per_rev / self.gear_ratio
-
-    @property
-    def velocity_rad_s_per_unit(self) -> float:
-        """Scale of 0x606C [rad/s per unit]."""
-        return 2 * math.pi / self.velocity_units_per_rev_s / self.gear_ratio
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any], prefix: str = "motor",
@@ -121,7 +115,9 @@ class MotorConfig:
             path = next((c for c in candidates if c.is_file()), candidates[0])
         if not path.is_file():
             raise ConfigError(f"{prefix}.eds", f"file not found: {path}")
-        counts = get_int(cfg, "encoder_counts_per_rev", prefix, d.encoder_counts_per_rev, min_value=1)
+        counts = cfg.get("encoder_counts_per_rev")
+        vel_units = cfg.get("velocity_units_per_rev_s")
+        gear = cfg.get("gear_ratio")
         rated = cfg.get("rated_torque_Nm")
         out = cls(
             interface=_get_str(cfg, "interface", prefix, d.interface),
@@ -131,10 +127,12 @@ class MotorConfig:
             master_node_id=get_int(cfg, "master_node_id", prefix, d.master_node_id, min_value=1, max_value=127),
             eds=str(path),
             mode=get_choice(cfg, "mode", MODES, prefix, d.mode),
-            encoder_counts_per_rev=counts,
-            velocity_units_per_rev_s=get_float(cfg, "velocity_units_per_rev_s", prefix, float(counts),
-                                               min_value=0.0, min_exclusive=True),
-            gear_ratio=get_float(cfg, "gear_ratio", prefix, d.gear_ratio, min_value=0.0, min_exclusive=True),
+            encoder_counts_per_rev=None if counts is None else get_int(cfg, "encoder_counts_per_rev", prefix,
+                                                                       min_value=1),
+            velocity_units_per_rev_s=None if vel_units is None else get_float(
+                cfg, "velocity_units_per_rev_s", prefix, min_value=0.0, min_exclusive=True),
+            gear_ratio=None if gear is None else get_float(cfg, "gear_ratio", prefix, min_value=0.0,
+                                                           min_exclusive=True),
             rated_torque_Nm=None if rated is None else get_float(cfg, "rated_torque_Nm", prefix,
                                                                   min_value=0.0, min_exclusive=True),
             max_torque_Nm=get_float(cfg, "max_torque_Nm", prefix, d.max_torque_Nm, min_value=0.0,

@@ -4,8 +4,10 @@ Used by :class:`capstan.drivers.canopen.motor.CanopenMotor` while the drive is N
 PRE-OPERATIONAL. What is written, in order:
 
 1. 0x6502 read: the configured mode must be listed (bit 3 profile torque, bit 9 CST);
-2. rated torque: 0x6076 [mNm] where the EDS has it (must agree with a configured
-   value), else the configured ``rated_torque_Nm``;
+2. units (:mod:`~capstan.drivers.canopen.drive_units`): 0x608F, 0x6091, 0x6092, 0x60A8,
+   0x60A9 and the rated torque 0x6076 [mNm] read where the EDS has them; every value the
+   configuration states must agree with the drive's (else refused, object and both values
+   named), a value it leaves out is the drive's;
 3. EMCY COB-ID read from 0x1014 (where the EDS has it; bit 31 set: the drive sends none);
 4. PDOs (CiA 301 procedure: COB-ID invalid, type, mapping count 0, entries, count,
    COB-ID valid): RPDO1 = 0x6040 + 0x6071, TPDO1 = 0x6041 + 0x6061 + 0x6064,
@@ -37,6 +39,7 @@ import canopen
 from capstan.drivers.canopen.cia402 import OpMode, SUPPORTED_MODE_BIT
 from capstan.drivers.canopen.bringup import write_safety_objects
 from capstan.drivers.canopen.config import MotorConfig
+from capstan.drivers.canopen.drive_units import DriveUnits, read_drive_units
 from capstan.drivers.canopen.sdo_access import has_object, sdo_read, sdo_write
 from capstan.models.common.errors import ConfigError, DriverError, StateTransitionError
 
@@ -71,14 +74,20 @@ class SetupResult:
     :ivar rpdo_cob: CAN-ID of RPDO1; :ivar tpdo1_cob:, :ivar tpdo2_cob: of the TPDOs.
     :ivar emcy_cob: CAN-ID of the drive's EMCY (0x1014), 0 if it sends none.
     :ivar safety: safety objects as read back from the drive (``"0x6072": 300``).
+    :ivar units: the feedback's scales as the drive reported them.
     """
 
-    rated_torque_Nm: float
+    units: DriveUnits
     rpdo_cob: int
     tpdo1_cob: int
     tpdo2_cob: int
     emcy_cob: int = 0
     safety: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def rated_torque_Nm(self) -> float:
+        """Torque of 1000 per mille [Nm]."""
+        return self.units.rated_torque_Nm
 
 
 def check_required_objects(od: canopen.ObjectDictionary, eds: str) -> None:
@@ -104,7 +113,8 @@ def configure_drive(node: canopen.RemoteNode, cfg: MotorConfig, mode: OpMode,
     """Configure the drive over SDO (see the module docstring).
 
     :raises DriverError: if 0x6502 lacks ``mode``.
-    :raises ConfigError: if the rated torque is unknown or contradicts 0x6076.
+    :raises ConfigError: if a unit or the rated torque is unknown, or
+        :class:`~capstan.drivers.canopen.drive_units.DriveUnitsError` if it contradicts the drive's.
     :raises StateTransitionError: if 0x6061 does not show ``mode`` in time.
     :raises canopen.SdoAbortedError: / ``SdoCommunicationError`` from the SDO client.
     """
@@ -115,7 +125,7 @@ def configure_drive(node: canopen.RemoteNode, cfg: MotorConfig, mode: OpMode,
         if not supported >> bit & 1:
             raise DriverError(f"drive {nid} does not support mode {int(mode)} ({mode.name}): "
                               f"0x6502 = 0x{supported:08X} lacks bit {bit}")
-    rated = _rated_torque_Nm(node, cfg)
+    units = read_drive_units(node, cfg)
     emcy_cob = 0x80 + nid
     if has_object(node, 0x1014):
         word = sdo_read(node, 0x1014)
@@ -139,7 +149,7 @@ def configure_drive(node: canopen.RemoteNode, cfg: MotorConfig, mode: OpMode,
     else:
         logger.warning("EDS %s has no 0x60C2; interpolation period not set", cfg.eds)
     sdo_write(node, 0x1017, 0, max(1, round(cfg.drive_heartbeat_period_s * 1000)))
-    safety = write_safety_objects(node, cfg, rated)
+    safety = write_safety_objects(node, cfg, units.rated_torque_Nm)
     sdo_write(node, 0x6060, 0, int(mode))
     deadline = time.monotonic() + mode_timeout_s
     while (shown := sdo_read(node, 0x6061)) != int(mode):
@@ -148,7 +158,7 @@ def configure_drive(node: canopen.RemoteNode, cfg: MotorConfig, mode: OpMode,
                                        f"mode {int(mode)} ({mode.name}), after {mode_timeout_s} s")
         time.sleep(0.005)
     sdo_write(node, 0x1016, 1, (cfg.master_node_id << 16) | min(0xFFFF, round(cfg.consumer_timeout_s * 1000)))
-    return SetupResult(rated, rpdo_cob, tpdo1_cob, tpdo2_cob, emcy_cob, safety)
+    return SetupResult(units, rpdo_cob, tpdo1_cob, tpdo2_cob, emcy_cob, safety)
 
 
 def interpolation_period(period_s: float) -> tuple[int, int]:
@@ -172,22 +182,6 @@ def interpolation_period(period_s: float) -> tuple[int, int]:
             return int(value), index
     raise ConfigError("motor.cycle_period_s", f"{period_s} s cannot be written to 0x60C2 exactly as "
                       f"value x 10^index with value 1..255")
-
-
-def _rated_torque_Nm(node: canopen.RemoteNode, cfg: MotorConfig) -> float:
-    if 0x6076 in node.object_dictionary:
-        drive_Nm = sdo_read(node, 0x6076) / 1000.0
-        if cfg.rated_torque_Nm is not None and abs(drive_Nm - cfg.rated_torque_Nm) > 0.005 * drive_Nm:
-            raise ConfigError("motor.rated_torque_Nm", f"{cfg.rated_torque_Nm} Nm contradicts the "
-                              f"drive's rated torque 0x6076 = {drive_Nm} Nm")
-        rated = drive_Nm
-    elif cfg.rated_torque_Nm is None:
-        raise ConfigError("motor.rated_torque_Nm", f"required: the EDS {cfg.eds} has no 0x6076")
-    else:
-        rated = cfg.rated_torque_Nm
-    if not rated > 0:
-        raise ConfigError("motor.rated_torque_Nm", f"rated torque must be > 0, got {rated}")
-    return rated
 
 
 def _map_pdo(node: canopen.RemoteNode, comm: int, mapping: int, default_cob: int,

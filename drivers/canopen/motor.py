@@ -5,7 +5,8 @@ checked in the EDS, the drive waited for (boot-up message or SDO polled with bac
 up to ``boot_timeout_s``, :mod:`~capstan.drivers.canopen.bringup`), NMT pre-operational,
 a FAULT the previous daemon left (heartbeat loss 0x8130) reset and named, any other
 fault refused unless ``fault_reset_at_start``; 0x6502 checked for the configured mode,
-rated torque (0x6076 or configuration), PDO mapping (RPDO1: controlword 0x6040 +
+units read from the drive (0x608F/0x6091/0x6092/0x60A8/0x60A9/0x6076, checked against the
+configuration, :mod:`~capstan.drivers.canopen.drive_units`), PDO mapping (RPDO1: controlword 0x6040 +
 target torque 0x6071; TPDO1: statusword 0x6041 + mode display 0x6061 + position
 0x6064; TPDO2: velocity 0x606C + torque 0x6077; all SYNC type 1, other PDOs
 disabled), interpolation period 0x60C2, drive heartbeat 0x1017, drive consumer
@@ -55,6 +56,7 @@ import canopen
 
 from capstan.drivers.canopen.bringup import recover_fault_at_start, wait_for_boot
 from capstan.drivers.canopen.drive_setup import ObjectMissingError, check_required_objects, configure_drive
+from capstan.drivers.canopen.drive_units import DriveUnits
 from capstan.drivers.canopen.ds402_control import Ds402Control
 from capstan.drivers.canopen.cia402 import OpMode, State402, decode_statusword, describe_statusword
 from capstan.drivers.canopen.emcy import EmcyFault, decode_emcy
@@ -101,7 +103,11 @@ class CanopenMotor(Ds402Control):
         self._bus = bus
         self.network: canopen.Network | None = None
         self.node: canopen.RemoteNode | None = None
+        #: feedback scales: the configuration's until :meth:`start` reads the drive's (None if it states none)
+        self.drive_units: DriveUnits | None = None
+        self._pos_scale = self._vel_scale = math.nan
         self.rated_torque_Nm = config.rated_torque_Nm or 0.0
+        self._use_units(DriveUnits.from_config(config))
         self.mode = _MODE[config.mode]
         self.state = State402.UNKNOWN
         self.last_emcy: EmcyFault | None = None
@@ -205,7 +211,7 @@ class CanopenMotor(Ds402Control):
         self.node.nmt.send_command(0x80)  # enter PRE-OPERATIONAL
         self.recovered_fault = recover_fault_at_start(self.node, cfg)
         done = configure_drive(self.node, cfg, self.mode, self.MODE_TIMEOUT_S)
-        self.rated_torque_Nm = done.rated_torque_Nm
+        self._use_units(done.units)
         self.safety_objects = done.safety
         self._rpdo_msg.arbitration_id = done.rpdo_cob
         self._cobs = (done.tpdo1_cob, done.tpdo2_cob, done.emcy_cob or -1, 0x700 + nid, 0x580 + nid)
@@ -217,6 +223,12 @@ class CanopenMotor(Ds402Control):
         self.enable()
         if self.DIRECT_READ:
             self._stop_notifier()
+
+    def _use_units(self, units: DriveUnits | None) -> None:
+        self.drive_units = units
+        if units is not None:
+            self.rated_torque_Nm = units.rated_torque_Nm
+            self._pos_scale, self._vel_scale = units.position_rad_per_unit, units.velocity_rad_s_per_unit
 
     def _release(self) -> None:
         """Undo start-up: unsubscribe, stop the receive thread, forget the node (bus kept or shut)."""
@@ -321,7 +333,7 @@ class CanopenMotor(Ds402Control):
             if can_id == tpdo1 and len(data) >= 7:
                 rd.statusword, rd.mode, pos = _TPDO1.unpack_from(data)
                 rd.position_counts = pos
-                rd.position_rad = pos * self.config.position_rad_per_count
+                rd.position_rad = pos * self._pos_scale
                 rd.t_ns = round(t_s * 1e9)
                 rd.t_s, new = seconds_from_ns(rd.t_ns), True
                 self.tpdo1_received += 1
@@ -333,7 +345,7 @@ class CanopenMotor(Ds402Control):
             elif can_id == tpdo2 and len(data) >= 6:
                 vel, tq = _TPDO2.unpack_from(data)
                 rd.velocity_units, rd.torque_permille = vel, tq
-                rd.velocity_rad_s = vel * self.config.velocity_rad_s_per_unit
+                rd.velocity_rad_s = vel * self._vel_scale
                 rd.torque_Nm = tq * self.rated_torque_Nm / 1000.0
                 rd.t_ns = round(t_s * 1e9)
                 rd.t_s, new = seconds_from_ns(rd.t_ns), True
@@ -381,9 +393,15 @@ class CanopenMotor(Ds402Control):
 
     def derivations(self) -> list[Derivation]:
         """How a log rebuilds the SI feedback from the logged wire values: exactly the
-        conversions of the TPDO decoding (valid after :meth:`start`: the rated torque)."""
-        return [Derivation("q_m_rad", "q_m_counts", scale_ops(self.config.position_rad_per_count)),
-                Derivation("dq_m_rad_s", "dq_m_units", scale_ops(self.config.velocity_rad_s_per_unit)),
+        conversions of the TPDO decoding (the drive's units: valid after :meth:`start`, or
+        before it where the configuration states every unit).
+
+        :raises DriverError: if the units are not known yet.
+        """
+        if self.drive_units is None:
+            raise DriverError(f"drive {self.config.node_id}: units unknown before start()")
+        return [Derivation("q_m_rad", "q_m_counts", scale_ops(self._pos_scale)),
+                Derivation("dq_m_rad_s", "dq_m_units", scale_ops(self._vel_scale)),
                 Derivation("tau_m_meas_Nm", "tau_m_meas_permille", motor_torque_ops(self.rated_torque_Nm)),
                 Derivation("motor_t_s", "motor_t_ns", NS_TO_S)]
 

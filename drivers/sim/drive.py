@@ -17,8 +17,20 @@ without SocketCAN). The drive
 * caps the torque at 0x6072 (max torque) and then sets statusword bit 11,
 * faults on :meth:`SimDrive.inject_fault` (EMCY with the given code).
 
-Units on the wire: 0x6064 in encoder increments, 0x606C in ``velocity_units_per_rev_s``
-per rev/s, 0x6071/0x6077 in per mille of the rated torque.
+Units on the wire are those the drive's object dictionary declares, as a real drive
+serves them: 0x6064 in the unit of 0x60A8 (SI unit position), 0x606C in the unit of 0x60A9
+(SI unit velocity) — whole rpm for the Nanotec C5-E EDS, increments and increments/s for
+capstan's own — each an integer, so the unit's quantisation happens on the wire; increments
+count the motor encoder (0x608F, ``encoder_counts_per_rev``), angle units are of the shaft
+behind the gear 0x6091; 0x6071/0x6077 in per mille of the rated torque (0x6076). A master
+may write 0x608F/0x6091/0x60A8/0x60A9 over SDO; a unit code the drive does not know is
+refused (abort 0x06090030). The positions and speeds given to :meth:`SimDrive.set_feedback`
+are the motor shaft's.
+
+CAN timing (optional, :mod:`capstan.drivers.sim.can_timing`): with a
+:class:`~capstan.drivers.sim.can_timing.CommandDelayLine` the target torque is taken over
+at each SYNC and reaches the motor 1-3 SYNCs later, and an RPDO is lost now and then (the
+drive keeps its previous target); without one the target is applied as the RPDO arrives.
 
 Threading: CAN reception (SDO, NMT, SYNC, RPDO) runs in the canopen notifier thread,
 :meth:`service` and :meth:`set_feedback` in the rig thread; a lock guards the state.
@@ -39,6 +51,8 @@ from canopen.sdo import SdoAbortedError
 from capstan.drivers.canopen.cia402 import (OpMode, State402, STATUSWORD_BITS, SUPPORTED_MODE_BIT,
                             decode_controlword, drive_transition)
 from capstan.drivers.canopen.emcy import encode_emcy
+from capstan.drivers.canopen.si_units import SiUnit
+from capstan.drivers.sim.can_timing import CommandDelayLine
 from capstan.models.common.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -63,25 +77,30 @@ class SimDrive:
     :param eds_path: EDS/DCF of the drive.
     :param rated_torque_Nm: rated torque; the unit of 0x6071/0x6077 is 1/1000 of it.
         Stored in 0x6076 [mNm] where the EDS has that object.
-    :param encoder_counts_per_rev: increments of 0x6064 per motor revolution.
-    :param velocity_units_per_rev_s: units of 0x606C per rev/s (default: increments/s).
+    :param encoder_counts_per_rev: increments of the motor encoder per revolution (the motor's
+        property: stored in 0x608F where the EDS has it; quantises the position).
+    :param si_units: power-on values of 0x60A8/0x60A9 overriding the EDS
+        (``{0x60A9: 0xFDB44700}``: milli-rpm), as a drive configured by its vendor tool.
     :param supported_modes: value for 0x6502 overriding the EDS (e.g. ``1 << 9`` CST only).
-    :raises ConfigError: for an invalid node id or rated torque.
+    :param command_delay: CAN timing of the command path (None: applied as the RPDO arrives).
+    :raises ConfigError: for an invalid node id or rated torque, or units the drive cannot serve.
     """
 
     def __init__(self, bus_or_network: can.BusABC | canopen.Network, node_id: int, eds_path: str,
                  rated_torque_Nm: float, encoder_counts_per_rev: int = 1 << 17,
-                 velocity_units_per_rev_s: float | None = None,
-                 supported_modes: int | None = None) -> None:
+                 si_units: dict[int, int] | None = None, supported_modes: int | None = None,
+                 command_delay: CommandDelayLine | None = None) -> None:
         if not 1 <= int(node_id) <= 127:
             raise ConfigError("sim_drive.node_id", f"must be 1..127, got {node_id}")
         if not rated_torque_Nm > 0:
             raise ConfigError("sim_drive.rated_torque_Nm", f"must be > 0, got {rated_torque_Nm}")
+        if not int(encoder_counts_per_rev) >= 1:
+            raise ConfigError("sim_drive.encoder_counts_per_rev", f"must be >= 1, got {encoder_counts_per_rev}")
         self.node_id = int(node_id)
         self.rated_torque_Nm = float(rated_torque_Nm)
-        self._counts_per_rad = encoder_counts_per_rev / (2 * math.pi)
-        vel_units = velocity_units_per_rev_s if velocity_units_per_rev_s else encoder_counts_per_rev
-        self._vel_units_per_rad_s = vel_units / (2 * math.pi)
+        self.encoder_counts_per_rev = int(encoder_counts_per_rev)
+        self.command_delay = command_delay
+        self._applied_permille = 0
         self._lock = threading.RLock()
         if isinstance(bus_or_network, canopen.Network):
             self.network = bus_or_network
@@ -103,6 +122,15 @@ class SimDrive:
             self._store(0x6076, 0, round(self.rated_torque_Nm * 1000))
         if supported_modes is not None:
             self._store(0x6502, 0, int(supported_modes))
+        if self._has(0x608F):
+            self._store(0x608F, 1, self.encoder_counts_per_rev)
+            self._store(0x608F, 2, 1)
+        for index, code in (si_units or {}).items():
+            self._store(index, 0, code)
+        try:
+            self._update_scales()
+        except ValueError as exc:
+            raise ConfigError("sim_drive.si_units", str(exc)) from exc
 
         self.nmt_state = NMT_INITIALISING
         self.state = State402.SWITCH_ON_DISABLED
@@ -138,6 +166,45 @@ class SimDrive:
     def _has(self, index: int) -> bool:
         return index in self.node.object_dictionary
 
+    def _ratio(self, index: int) -> float:
+        """sub 1 / sub 2 of a factor-group object (1 where the dictionary lacks it)."""
+        if not self._has(index):
+            return 1.0
+        num, den = int(self._value(index, 1) or 0), int(self._value(index, 2) or 0)
+        if num <= 0 or den <= 0:
+            raise ValueError(f"0x{index:04X} = {num}:{den} is not a ratio of positive integers")
+        return num / den
+
+    def _unit_per_rad(self, index: int, time_unit: bool) -> float:
+        """Units of 0x6064 (0x606C) per motor-shaft rad (rad/s) as 0x60A8 (0x60A9) declares;
+        increments/(s) where the dictionary has no such object (CiA 402 default).
+
+        :raises ValueError: for a unit code the drive does not serve.
+        """
+        inc_per_rev = self._ratio(0x608F) if self._has(0x608F) else self.encoder_counts_per_rev
+        inc_per_rad = inc_per_rev / (2 * math.pi)
+        if not self._has(index):
+            return inc_per_rad
+        unit = SiUnit.decode(int(self._value(index, 0)))
+        seconds = unit.seconds if time_unit else (1.0 if unit.denominator == 0 else None)
+        if seconds is None:
+            raise ValueError(f"0x{index:04X} = {unit}: not a {'velocity' if time_unit else 'position'} unit")
+        if unit.is_increments:
+            return inc_per_rad * seconds / 10.0 ** unit.exponent
+        if unit.radians is None:
+            raise ValueError(f"0x{index:04X} = {unit}: not an angle unit this drive serves")
+        return seconds / unit.radians / self._ratio(0x6091)
+
+    def _update_scales(self) -> None:
+        self._pos_units_per_rad = self._unit_per_rad(0x60A8, time_unit=False)
+        self._vel_units_per_rad_s = self._unit_per_rad(0x60A9, time_unit=True)
+        self._counts_per_rad = self.encoder_counts_per_rev / (2 * math.pi)
+
+    @property
+    def gear_ratio(self) -> float:
+        """Motor revolutions per shaft revolution (0x6091; 1 without it)."""
+        return self._ratio(0x6091)
+
     def _boot(self) -> None:
         self.network.send_message(0x700 + self.node_id, b"\x00")
         self.nmt_state = NMT_PRE_OPERATIONAL
@@ -156,7 +223,8 @@ class SimDrive:
             if (self.nmt_state == NMT_OPERATIONAL and self.state == State402.OPERATION_ENABLED
                     and self.mode_display in _TORQUE_MODES):
                 lim = self._max_torque_permille()
-                return max(-lim, min(lim, self.target_torque_permille)) * self.rated_torque_Nm / 1000.0
+                target = self.target_torque_permille if self.command_delay is None else self._applied_permille
+                return max(-lim, min(lim, target)) * self.rated_torque_Nm / 1000.0
             return 0.0
 
     def _max_torque_permille(self) -> int:
@@ -251,12 +319,26 @@ class SimDrive:
             if self.nmt_state != NMT_OPERATIONAL:
                 return
             self._sync_count += 1
+            if self.command_delay is not None:
+                self._take_over_target()
             frames = []
             for cob_id, ttype, entries in self._tpdos:
                 if ttype == 0 or self._sync_count % ttype == 0:
                     frames.append((cob_id, b"".join(self.node.get_data(i, s) for i, s in entries)))
         for cob_id, payload in frames:
             self.network.send_message(cob_id, payload)
+
+    def _take_over_target(self) -> None:
+        """At a SYNC: the current target enters the delay line; the one due reaches the motor."""
+        line = self.command_delay
+        if self.state != State402.OPERATION_ENABLED:
+            line.reset()
+            self._applied_permille = 0
+            return
+        line.take(self._sync_count, self.target_torque_permille)
+        due = line.due(self._sync_count)
+        if due is not None:
+            self._applied_permille = due
 
     def _build_pdos(self) -> None:
         for cob_id in list(self._rpdos):
@@ -299,6 +381,10 @@ class SimDrive:
         entries = self._rpdos.get(can_id)
         if entries is None or self.nmt_state != NMT_OPERATIONAL:
             return
+        if self.command_delay is not None:
+            with self._lock:
+                if self.command_delay.frame_lost():
+                    return  # lost on the bus: the drive keeps its previous target and controlword
         for idx, sub, offset, nbytes in entries:
             if idx < 0x1000:
                 continue  # dummy mapping
@@ -328,6 +414,18 @@ class SimDrive:
             elif index == 0x1016 and subindex > 0:
                 self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
                 self._load_consumers()
+            elif index in (0x608F, 0x6091, 0x60A8, 0x60A9):
+                store = self.node.data_store.setdefault(index, {})
+                old = store.get(subindex)
+                store[subindex] = bytes(data)
+                try:
+                    self._update_scales()
+                except ValueError:
+                    if old is None:
+                        del store[subindex]
+                    else:
+                        store[subindex] = old
+                    raise SdoAbortedError(_ABORT_VALUE_RANGE) from None
 
     def _load_consumers(self) -> None:
         for node in self._consumers:
@@ -374,8 +472,9 @@ class SimDrive:
             return self.statusword()
         if index == 0x6061:
             return self.mode_display
-        if index == 0x6064:
-            return _wrap_i32(round(self._position_rad * self._counts_per_rad))
+        if index == 0x6064:  # the encoder's increments, then the declared unit: both quantise
+            counts = round(self._position_rad * self._counts_per_rad)
+            return _wrap_i32(round(counts / self._counts_per_rad * self._pos_units_per_rad))
         if index == 0x606C:
             return _wrap_i32(round(self._velocity_rad_s * self._vel_units_per_rad_s))
         if index == 0x6077:
