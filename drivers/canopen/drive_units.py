@@ -192,10 +192,10 @@ def _angle_scale(node: canopen.RemoteNode, index: int, name: str, key: str, conf
                                       f"increments, but the drive gives no 0x608F encoder resolution")
             motor_rad = 2 * math.pi / inc_per_rev * 10.0 ** unit.exponent / seconds
             scale = motor_rad / drive_gear / outside_gear
-            what = f"{quantity} in {unit} (0x{index:04X} {name}) with 0x608F = {reported['0x608F']}"
+            what = f"0x{index:04X} ({name}) = {unit} with 0x608F = {reported['0x608F']}"
         elif unit.radians is not None:
             scale = unit.radians / seconds / outside_gear
-            what = f"{quantity} in {unit} (0x{index:04X} {name})"
+            what = f"0x{index:04X} ({name}) = {unit}"
             if drive_gear != 1.0:
                 what += f" of the shaft behind gear 0x6091 = {reported['0x6091']}"
         else:
@@ -203,12 +203,12 @@ def _angle_scale(node: canopen.RemoteNode, index: int, name: str, key: str, conf
                                   f"0x{unit.numerator:02X} is not an angle capstan knows (rad, degree, "
                                   f"revolution, increments)")
         gear_total = drive_gear * outside_gear
-        _check(key, configured, 2 * math.pi / (gear_total * scale), what, f"units per {per}")
+        _check(key, configured, 2 * math.pi / (gear_total * scale), what, f"units of {quantity} per {per}")
         source[key] = f"drive 0x{index:04X}"
         return scale
     if not time_unit and inc_per_rev is not None:   # no 0x60A8: 0x6064 counts increments (CiA 402)
-        _check(key, configured, inc_per_rev, f"0x6064 in increments, 0x608F = {reported['0x608F']}",
-               f"increments per {per}")
+        _check(key, configured, inc_per_rev, f"no 0x60A8, so increments, and 0x608F (position encoder "
+               f"resolution) = {reported['0x608F']}", f"units of 0x6064 per {per}")
         source[key] = "drive 0x608F"
         return 2 * math.pi / inc_per_rev / drive_gear / outside_gear
     if configured is None:

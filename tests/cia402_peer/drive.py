@@ -16,7 +16,12 @@ a careless master:
   the 0x6007 reaction (1 fault, 2 disable voltage, 3 quick stop);
 * 0x605A quick-stop option (0-4: ends in SWITCH ON DISABLED, 5-8: stays in QUICK STOP
   ACTIVE, transition 16 allowed), 0x605B shutdown option (0 at once, 1 after a ramp);
-* EMCY on the COB-ID of 0x1014, error code in 0x603F and history in 0x1003.
+* EMCY on the COB-ID of 0x1014, error code in 0x603F and history in 0x1003;
+* units (CiA 402-2 factor group, :mod:`cia402_peer.units`): 0x6064 and 0x606C are served
+  in the units 0x60A8/0x60A9 declare (the vendor EDS: tenths of a degree and rpm), from
+  its internal increments (0x6063, motor encoder of ``encoder_increments`` per revolution,
+  0x608F) and its motor speed, through the gear 0x6091; unit codes it does not know are
+  refused on write (abort 0x06090030).
 
 Runs in its own thread on its own python-can bus; :meth:`PeerDrive.close` re-raises
 an error of that thread.
@@ -34,6 +39,7 @@ import can
 from cia402_peer.device_control import DeviceControl, Ds402
 from cia402_peer.od import Entry, load_eds
 from cia402_peer.sdo_server import (ABORT_RANGE, ABORT_STATE, SdoAbort, handle_request)
+from cia402_peer.units import UnitError, user_value
 
 
 class Nmt(IntEnum):
@@ -54,21 +60,29 @@ class PeerDrive(DeviceControl):
     :param max_torque_permille: 0x6072 at power-on.
     :param emcy_cob_id: 0x1014 at power-on (default 0x80 + node id).
     :param ramp_s: duration of quick-stop and shutdown ramps.
+    :param encoder_increments: increments per revolution of the motor's encoder (0x608F sub 1).
+    :param power_on: further object values at power-on, ``{(index, sub): value}`` (a drive
+        set up by its vendor tool, e.g. ``{(0x60A9, 0): 0xFDB44700}``).
     """
 
     def __init__(self, bus: can.BusABC, node_id: int, eds: str, boot_delay_s: float = 0.0,
                  abort_connection_option: int = 0, max_torque_permille: int = 100,
-                 emcy_cob_id: int | None = None, ramp_s: float = 0.02) -> None:
+                 emcy_cob_id: int | None = None, ramp_s: float = 0.02, encoder_increments: int = 4096,
+                 power_on: dict[tuple[int, int], int] | None = None) -> None:
         self.bus, self.node_id, self.eds = bus, node_id, eds
         self.boot_delay_s, self.ramp_s = boot_delay_s, ramp_s
-        self._power_on = {(0x6007, 0): abort_connection_option, (0x6072, 0): max_torque_permille}
+        self._power_on = {(0x6007, 0): abort_connection_option, (0x6072, 0): max_torque_permille,
+                          (0x608F, 1): encoder_increments, (0x608F, 2): 1, **(power_on or {})}
         if emcy_cob_id is not None:
             self._power_on[(0x1014, 0)] = emcy_cob_id
         self.lock = threading.RLock()
         self.error: BaseException | None = None
         self.emcy_sent: list[int] = []
         self.boot_ups = 0
+        #: internal position (0x6063) [increments of the motor encoder]
         self.position_counts = 1000
+        #: motor speed the drive measures [motor revolutions per second]
+        self.motor_speed_rev_s = 0.0
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="cia402-peer", daemon=True)
         self._power_up(time.monotonic())
@@ -263,10 +277,22 @@ class PeerDrive(DeviceControl):
         if i == 0x6077:
             return round(self._applied)
         if i == 0x6064:
+            return self._user(0x60A8, self.position_counts)
+        if i == 0x6063:
             return self.position_counts
+        if i == 0x606C:
+            return self._user(0x60A9, self.motor_speed_rev_s * self.od_value(0x608F, 1, 0)
+                              / max(1, self.od_value(0x608F, 2, 1)))
         if i == 0x6071:
             return self._target
         return e.value
+
+    def _user(self, si_index: int, increments: float) -> int:
+        """``increments`` (per second, for 0x60A9) of the motor encoder in the unit ``si_index`` declares."""
+        gear = (self.od_value(0x6091, 1, 1), self.od_value(0x6091, 2, 1))
+        enc = (self.od_value(0x608F, 1, 0), self.od_value(0x608F, 2, 1))
+        return user_value(self.od_value(si_index, 0, 0x00B50000 if si_index == 0x60A8 else 0x00B50300),
+                          increments, enc, gear)
 
     def _pdo_valid(self, comm: int) -> bool:
         return not self.od[(comm, 1)].value & 0x80000000
@@ -305,6 +331,14 @@ class PeerDrive(DeviceControl):
             raise SdoAbort(ABORT_RANGE)
         elif i == 0x1029 and not 0 <= v <= 2:
             raise SdoAbort(ABORT_RANGE)
+        elif i in (0x608F, 0x6091, 0x60A8, 0x60A9):
+            old, e.value = e.value, v
+            try:
+                self._user(0x60A8, 0)
+                self._user(0x60A9, 0)
+            except UnitError:
+                e.value = old
+                raise SdoAbort(ABORT_RANGE) from None
         e.value = v
         if i == 0x6040:
             self._controlword(v, now)
