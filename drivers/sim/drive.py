@@ -51,8 +51,8 @@ from canopen.sdo import SdoAbortedError
 from capstan.drivers.canopen.cia402 import (OpMode, State402, STATUSWORD_BITS, SUPPORTED_MODE_BIT,
                             decode_controlword, drive_transition)
 from capstan.drivers.canopen.emcy import encode_emcy
-from capstan.drivers.canopen.si_units import SiUnit
 from capstan.drivers.sim.can_timing import CommandDelayLine
+from capstan.drivers.sim.wire_units import wire_units_per_rad
 from capstan.models.common.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -166,44 +166,14 @@ class SimDrive:
     def _has(self, index: int) -> bool:
         return index in self.node.object_dictionary
 
-    def _ratio(self, index: int) -> float:
-        """sub 1 / sub 2 of a factor-group object (1 where the dictionary lacks it)."""
-        if not self._has(index):
-            return 1.0
-        num, den = int(self._value(index, 1) or 0), int(self._value(index, 2) or 0)
-        if num <= 0 or den <= 0:
-            raise ValueError(f"0x{index:04X} = {num}:{den} is not a ratio of positive integers")
-        return num / den
-
-    def _unit_per_rad(self, index: int, time_unit: bool) -> float:
-        """Units of 0x6064 (0x606C) per motor-shaft rad (rad/s) as 0x60A8 (0x60A9) declares;
-        increments/(s) where the dictionary has no such object (CiA 402 default).
-
-        :raises ValueError: for a unit code the drive does not serve.
-        """
-        inc_per_rev = self._ratio(0x608F) if self._has(0x608F) else self.encoder_counts_per_rev
-        inc_per_rad = inc_per_rev / (2 * math.pi)
-        if not self._has(index):
-            return inc_per_rad
-        unit = SiUnit.decode(int(self._value(index, 0)))
-        seconds = unit.seconds if time_unit else (1.0 if unit.denominator == 0 else None)
-        if seconds is None:
-            raise ValueError(f"0x{index:04X} = {unit}: not a {'velocity' if time_unit else 'position'} unit")
-        if unit.is_increments:
-            return inc_per_rad * seconds / 10.0 ** unit.exponent
-        if unit.radians is None:
-            raise ValueError(f"0x{index:04X} = {unit}: not an angle unit this drive serves")
-        return seconds / unit.radians / self._ratio(0x6091)
-
     def _update_scales(self) -> None:
-        self._pos_units_per_rad = self._unit_per_rad(0x60A8, time_unit=False)
-        self._vel_units_per_rad_s = self._unit_per_rad(0x60A9, time_unit=True)
-        self._counts_per_rad = self.encoder_counts_per_rev / (2 * math.pi)
+        """Wire units per motor-shaft rad (rad/s) from the dictionary's unit objects.
 
-    @property
-    def gear_ratio(self) -> float:
-        """Motor revolutions per shaft revolution (0x6091; 1 without it)."""
-        return self._ratio(0x6091)
+        :raises ValueError: for units the drive cannot serve.
+        """
+        self._pos_units_per_rad, self._vel_units_per_rad_s = wire_units_per_rad(
+            lambda i, k: self._value(i, k), self._has, self.encoder_counts_per_rev)
+        self._counts_per_rad = self.encoder_counts_per_rev / (2 * math.pi)
 
     def _boot(self) -> None:
         self.network.send_message(0x700 + self.node_id, b"\x00")
