@@ -258,3 +258,31 @@ def test_sim_drive_applies_the_target_two_syncs_late_and_holds_it_through_a_lost
     # cycle k's target (0.1 k Nm) reaches the motor at cycle k + 2; cycle 8's was lost: the
     # drive kept cycle 7's target, which reaches the motor at cycle 10 in its place
     assert seen[4:] == [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.7, 0.9]
+
+
+# ------------------------------------------------------------ motor.units: write
+def test_units_write_sets_the_peer_to_milli_rpm_before_the_check(peer_rig):
+    peer, motor = peer_rig(units="write", velocity_units_per_rev_s=60000, encoder_counts_per_rev=3600)
+    peer.motor_speed_rev_s = 0.5
+    motor.start()
+    run_cycles(motor, 20)
+    assert peer.value(0x60A9) == 0xFDB44700 and peer.value(0x60A8) == 0xFF410000
+    assert motor.reading.velocity_units == 30000
+    assert motor.reading.velocity_rad_s == pytest.approx(math.pi, rel=1e-12)
+
+
+def test_units_write_refuses_a_value_no_unit_code_makes(peer_rig):
+    peer, motor = peer_rig(units="write", velocity_units_per_rev_s=131072)    # the peer's encoder: 4096
+    with pytest.raises(DriveUnitsError, match=r"motor.velocity_units_per_rev_s.*no 0x60A9 unit code gives "
+                                              r"131072 units per motor rev/s"):
+        motor.start()
+    assert peer.value(0x60A9) == 0x00B44700                                 # nothing written
+
+
+def test_units_write_sets_the_sim_drive_to_increments_per_second(sim):
+    rig, motor = sim(units="write", velocity_units_per_rev_s=131072)
+    rig.velocity_rad_s = 1.0
+    motor.start()
+    run_cycles(motor, 20)
+    assert motor.drive_units.reported["0x60A9"] == "0x00B50300 (inc/s)"
+    assert motor.reading.velocity_units == round(131072 / (2 * math.pi))

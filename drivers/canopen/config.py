@@ -22,8 +22,12 @@ _KEYS = frozenset({
     "rated_torque_Nm", "max_torque_Nm", "cycle_period_s", "heartbeat_period_s",
     "drive_heartbeat_period_s", "consumer_timeout_s",
     "boot_timeout_s", "abort_connection_option", "comm_error_behaviour", "quick_stop_option",
-    "shutdown_option", "fault_reset_at_start",
+    "shutdown_option", "fault_reset_at_start", "units",
 })
+
+#: what start-up does with the configured units: check them against the drive's, or write
+#: the SI unit objects 0x60A8/0x60A9 from them first (then check)
+UNITS_MODES = ("check", "write")
 
 #: 0x6007 abort connection option codes accepted (CiA 402-2): 1 fault, 2 disable voltage,
 #: 3 quick stop; 0 ("no action") is refused: the drive would keep the last torque when the
@@ -67,6 +71,9 @@ class MotorConfig:
     :ivar quick_stop_option: 0x605A written where the drive has it (0..8, CiA 402-2).
     :ivar shutdown_option: 0x605B written where the drive has it (0 disable at once,
         1 ramp down then disable).
+    :ivar units: ``check`` (default): the configured units must match the drive's;
+        ``write``: 0x60A8/0x60A9 are written over SDO from ``encoder_counts_per_rev`` /
+        ``velocity_units_per_rev_s`` (where stated) before the check.
     :ivar fault_reset_at_start: reset a drive found in FAULT at start-up whatever the
         fault (default: only the heartbeat-loss fault 0x8130 the daemon itself caused).
     """
@@ -93,6 +100,7 @@ class MotorConfig:
     quick_stop_option: int = 2
     shutdown_option: int = 0
     fault_reset_at_start: bool = False
+    units: str = "check"
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any], prefix: str = "motor",
@@ -157,6 +165,7 @@ class MotorConfig:
                                         tuple(range(9))),
             shutdown_option=_get_code(cfg, "shutdown_option", prefix, d.shutdown_option, (0, 1)),
             fault_reset_at_start=_get_bool(cfg, "fault_reset_at_start", prefix, d.fault_reset_at_start),
+            units=get_choice(cfg, "units", UNITS_MODES, prefix, d.units),
         )
         if out.node_id == out.master_node_id:
             raise ConfigError(f"{prefix}.master_node_id", f"must differ from node_id {out.node_id}")

@@ -7,7 +7,8 @@ PRE-OPERATIONAL. What is written, in order:
 2. units (:mod:`~capstan.drivers.canopen.drive_units`): 0x608F, 0x6091, 0x6092, 0x60A8,
    0x60A9 and the rated torque 0x6076 [mNm] read where the EDS has them; every value the
    configuration states must agree with the drive's (else refused, object and both values
-   named), a value it leaves out is the drive's;
+   named), a value it leaves out is the drive's; with ``motor.units: write`` 0x60A8/0x60A9
+   are first written from the configured units;
 3. EMCY COB-ID read from 0x1014 (where the EDS has it; bit 31 set: the drive sends none);
 4. PDOs (CiA 301 procedure: COB-ID invalid, type, mapping count 0, entries, count,
    COB-ID valid): RPDO1 = 0x6040 + 0x6071, TPDO1 = 0x6041 + 0x6061 + 0x6064,
@@ -39,7 +40,7 @@ import canopen
 from capstan.drivers.canopen.cia402 import OpMode, SUPPORTED_MODE_BIT
 from capstan.drivers.canopen.bringup import write_safety_objects
 from capstan.drivers.canopen.config import MotorConfig
-from capstan.drivers.canopen.drive_units import DriveUnits, read_drive_units
+from capstan.drivers.canopen.drive_units import DriveUnits, read_drive_units, write_configured_units
 from capstan.drivers.canopen.sdo_access import has_object, sdo_read, sdo_write
 from capstan.models.common.errors import ConfigError, DriverError, StateTransitionError
 
@@ -125,6 +126,8 @@ def configure_drive(node: canopen.RemoteNode, cfg: MotorConfig, mode: OpMode,
         if not supported >> bit & 1:
             raise DriverError(f"drive {nid} does not support mode {int(mode)} ({mode.name}): "
                               f"0x6502 = 0x{supported:08X} lacks bit {bit}")
+    if cfg.units == "write":
+        write_configured_units(node, cfg)
     units = read_drive_units(node, cfg)
     emcy_cob = 0x80 + nid
     if has_object(node, 0x1014):

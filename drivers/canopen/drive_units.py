@@ -22,6 +22,11 @@ refused with :class:`DriveUnitsError` naming the key, the object, the drive's va
 the configuration's. A value the configuration leaves out is the drive's; a value neither
 states is refused (ConfigError naming the key and the missing object).
 
+With ``motor.units: write``, :func:`write_configured_units` first writes 0x60A8/0x60A9 from
+the configured ``encoder_counts_per_rev`` / ``velocity_units_per_rev_s`` (the SI unit code
+that makes them, read back), not stored in the drive's non-volatile memory; the check then
+runs as always. The gear, encoder resolution and rated torque are never written.
+
 Start-up only: SDO through canopen's client, never on the per-cycle path.
 """
 
@@ -35,9 +40,9 @@ from typing import Any
 import canopen
 
 from capstan.drivers.canopen.config import MotorConfig
-from capstan.drivers.canopen.sdo_access import has_object, sdo_read
-from capstan.drivers.canopen.si_units import LINEAR_UNITS, SiUnit
-from capstan.models.common.errors import ConfigError
+from capstan.drivers.canopen.sdo_access import has_object, sdo_read, sdo_write
+from capstan.drivers.canopen.si_units import LINEAR_UNITS, SiUnit, code_for
+from capstan.models.common.errors import ConfigError, DriverError
 
 logger = logging.getLogger(__name__)
 
@@ -235,3 +240,37 @@ def _rated_torque_Nm(node: canopen.RemoteNode, cfg: MotorConfig, reported: dict[
         raise ConfigError("motor.rated_torque_Nm", f"required: the EDS {cfg.eds} has no 0x6076")
     source["rated_torque_Nm"] = "config"
     return cfg.rated_torque_Nm
+
+
+def write_configured_units(node: canopen.RemoteNode, cfg: MotorConfig) -> dict[str, str]:
+    """Write 0x60A8/0x60A9 so the drive serves the configured units (``motor.units: write``).
+
+    :returns: ``{"0x60A9": "0x00B44700 (rpm)", ...}`` of what was written and read back.
+    :raises DriveUnitsError: if the drive lacks the object or no SI unit code makes the
+        configured value (key, object and value named).
+    :raises DriverError: if the value read back differs (object named), or an SDO fails.
+    """
+    enc = _ratio(node, 0x608F)
+    inc_per_rev = enc[0] / enc[1] if enc is not None and enc[0] > 0 and enc[1] > 0 else None
+    gear = _ratio(node, 0x6091)
+    drive_gear = gear[0] / gear[1] if gear is not None and gear[0] > 0 and gear[1] > 0 else 1.0
+    written: dict[str, str] = {}
+    for index, key, value, time_unit in ((0x60A8, "encoder_counts_per_rev", cfg.encoder_counts_per_rev, False),
+                                         (0x60A9, "velocity_units_per_rev_s", cfg.velocity_units_per_rev_s, True)):
+        if value is None:
+            continue
+        if not has_object(node, index):
+            raise DriveUnitsError(f"motor.{key}", f"motor.units is 'write' but the drive lists no 0x{index:04X}")
+        code = code_for(float(value), inc_per_rev, drive_gear, time_unit)
+        if code is None:
+            raise DriveUnitsError(f"motor.{key}", f"motor.units is 'write' but no 0x{index:04X} unit code gives "
+                                  f"{value:.9g} units per motor rev{'/s' if time_unit else ''} (encoder "
+                                  f"{inc_per_rev}, gear {drive_gear:.9g})")
+        sdo_write(node, index, 0, code)
+        back = sdo_read(node, index)
+        if back != code:
+            raise DriverError(f"drive {node.id}: 0x{index:04X} reads back 0x{back:08X} after writing 0x{code:08X}")
+        written[f"0x{index:04X}"] = str(SiUnit.decode(code))
+        logger.warning("drive %d: 0x%04X set to %s from motor.%s (motor.units: write; not stored in the drive)",
+                       node.id, index, SiUnit.decode(code), key)
+    return written

@@ -90,3 +90,31 @@ class SiUnit:
         if (self.numerator, self.denominator) == (0xB4, 0x47):
             text = f"{prefix}rpm"  # revolutions per minute
         return f"0x{self.code:08X} ({text})"
+
+
+#: candidate (numerator, denominator) codes, in order of preference, for a position / a velocity
+_POSITION_CANDIDATES = ((0xB5, 0x00), (0x41, 0x00), (0xB4, 0x00), (0x10, 0x00))
+_VELOCITY_CANDIDATES = ((0xB4, 0x47), (0xB5, 0x03), (0x10, 0x03), (0x41, 0x03), (0xB4, 0x03))
+_EXPONENTS = (0, -1, 1, -2, 2, -3, 3, -4, 4, -5, 5, -6, 6)
+
+
+def code_for(units_per_motor_rev: float, increments_per_rev: float | None, gear_ratio: float,
+             time_unit: bool, rtol: float = 1e-9) -> int | None:
+    """The SI unit code whose unit makes ``units_per_motor_rev`` units per motor revolution
+    (per motor rev/s for ``time_unit``), or None if no code does.
+
+    :param increments_per_rev: 0x608F of the drive (None: increments are not offered).
+    :param gear_ratio: the drive's 0x6091 (motor revolutions per shaft revolution).
+    """
+    for numerator, denominator in (_VELOCITY_CANDIDATES if time_unit else _POSITION_CANDIDATES):
+        seconds = TIME_UNITS[denominator][1] if denominator else 1.0
+        if numerator == 0xB5:
+            if not increments_per_rev:
+                continue
+            base = increments_per_rev * seconds           # units per motor rev(/s) at prefix 10^0
+        else:
+            base = 2 * math.pi / ANGLE_UNITS[numerator][1] * seconds / gear_ratio
+        for exponent in _EXPONENTS:
+            if abs(base * 10.0 ** -exponent - units_per_motor_rev) <= rtol * units_per_motor_rev:
+                return SiUnit.encode(exponent, numerator, denominator)
+    return None
