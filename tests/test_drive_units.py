@@ -14,7 +14,7 @@ import can
 import pytest
 
 from cia402_helpers import CAPSTAN_EDS, NODE_ID, VENDOR_EDS, Rig, Spy, make_motor, run_cycles
-from cia402_peer import PeerDrive
+from test_cia402_peer import channel, rig as peer_rig  # noqa: F401 - fixtures: a channel; (peer, motor) on it
 from capstan.drivers.can_unix import UnixSocketBus
 from capstan.drivers.canopen.cia402 import State402
 from capstan.drivers.canopen.drive_units import DriveUnitsError
@@ -25,11 +25,6 @@ from capstan.models.common.errors import ConfigError
 
 RPM = 2 * math.pi / 60          # rad/s of one rpm
 DECI_DEG = math.pi / 1800       # rad of a tenth of a degree
-
-
-@pytest.fixture
-def channel(tmp_path):
-    return str(tmp_path / "can0")
 
 
 @pytest.fixture
@@ -49,26 +44,6 @@ def sim(channel):
         motor.close()
         bus.shutdown()
         rig.close()
-
-
-@pytest.fixture
-def peer_rig(channel):
-    """Factory: (peer drive on the vendor EDS, motor driver); closed afterwards."""
-    made = []
-
-    def _make(peer_kwargs=None, **cfg):
-        peer = PeerDrive(UnixSocketBus(channel), NODE_ID, VENDOR_EDS, **(peer_kwargs or {})).start()
-        cfg.setdefault("rated_torque_Nm", 2.0)
-        motor, bus = make_motor(channel, eds=VENDOR_EDS, **cfg)
-        made.append((peer, motor, bus))
-        return peer, motor
-
-    yield _make
-    for peer, motor, bus in made:
-        motor.close()
-        bus.shutdown()
-        peer.close()
-        peer.bus.shutdown()
 
 
 # ------------------------------------------------------------------ SI unit codes
