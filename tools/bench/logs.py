@@ -50,8 +50,8 @@ CONFIG = {"controller": {"feedback": {"kp": 4.0},
 
 #: sensor scales as on the rig (config/serial_devices.yaml, config/motor.yaml, config/hil.yaml)
 LC_SCALE_N_PER_MV_V = 250.0
-RAD_PER_COUNT = 2 * math.pi / 131072 / 1.0            # MotorConfig.position_rad_per_count
-RAD_S_PER_UNIT = 2 * math.pi / 131072 / 1.0           # MotorConfig.velocity_rad_s_per_unit
+RAD_PER_COUNT = 2 * math.pi / 131072 / 1.0            # capstan_drive.eds 0x6064 unit (DriveUnits)
+RAD_S_PER_UNIT = 2 * math.pi / 131072 / 1.0           # capstan_drive.eds 0x606C unit (DriveUnits)
 RATED_TORQUE_NM = 20.0
 #: sensor noise as the simulated rig's (config/hil.yaml plant.noise) and drive feedback
 NOISE_TENSION_N, NOISE_ANGLE_RAD, NOISE_RATE_RAD_S = 0.3, 5e-4, 2e-3
