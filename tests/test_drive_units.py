@@ -19,9 +19,9 @@ from capstan.drivers.can_unix import UnixSocketBus
 from capstan.drivers.canopen.cia402 import State402
 from capstan.drivers.canopen.drive_units import DriveUnitsError
 from capstan.drivers.canopen.si_units import SiUnit
-from capstan.drivers.sim.can_timing import CanTimingSettings, CommandDelayLine
 from capstan.drivers.sim.drive import SimDrive
 from capstan.models.common.errors import ConfigError
+from capstan.models.plant.command_path import CommandPath, CommandTiming
 
 RPM = 2 * math.pi / 60          # rad/s of one rpm
 DECI_DEG = math.pi / 1800       # rad of a tenth of a degree
@@ -179,60 +179,49 @@ def test_peer_drive_units_read_byte_by_byte_and_rpm_scaled(peer_rig, channel):
 
 
 # --------------------------------------------------------------------- CAN timing
-def test_command_delay_distribution_is_one_to_three_cycles_and_never_reorders():
-    line = CommandDelayLine((1, 3), loss_rate=0.0, seed=7)
-    applied: list[tuple[int, int]] = []
-    for sync in range(20000):
-        line.take(sync, sync)                   # the target is the SYNC number it was taken at
-        due = line.due(sync)
-        if due is not None:
-            applied.append((sync, due))
-    delays = [s - t for s, t in applied]
-    assert set(delays) == {1, 2, 3}                         # every delay occurs, none outside
-    assert all(b[1] > a[1] for a, b in zip(applied, applied[1:]))   # never an older target after a newer
-    assert sum(line.delays.values()) + line.superseded + len(line._queue) == 20000
-    # uniform draws 1..3 with the newest-wins rule: short delays win more often than long ones
-    assert line.delays[1] > line.delays[2] > line.delays[3] > 0
-
-
-def test_command_loss_rate_within_four_sigma():
-    n, p = 200_000, 0.01
-    line = CommandDelayLine((1, 3), loss_rate=p, seed=3)
-    lost = sum(line.frame_lost() for _ in range(n))
-    sigma = math.sqrt(n * p * (1 - p))                      # binomial: 44.5 frames
-    assert abs(lost - n * p) < 4 * sigma and line.lost == lost and line.frames == n
-
-
-def test_can_timing_settings_ideal_and_refusals():
-    assert CanTimingSettings.from_mapping({}, "hil.drive").delay_line() is not None      # realistic by default
-    assert CanTimingSettings.from_mapping({"can_timing": "ideal"}, "hil.drive").delay_line() is None
-    with pytest.raises(ConfigError, match="hil.drive.command_delay_cycles"):
-        CanTimingSettings.from_mapping({"command_delay_cycles": [3, 1]}, "hil.drive")
-    with pytest.raises(ConfigError, match="hil.drive.can_timing"):
-        CanTimingSettings.from_mapping({"can_timing": "kind"}, "hil.drive")
-
-
-def test_sim_drive_applies_the_target_two_syncs_late_and_holds_it_through_a_lost_rpdo(sim):
-    line = CommandDelayLine((2, 2), loss_rate=0.0, seed=0)
-    rig, motor = sim(eds=CAPSTAN_EDS, sim_kwargs={"command_delay": line})
+def _run_through_drive(sim, path, targets_permille, lose_at=()):
+    """Send one target per cycle through the driver and the simulated drive (capstan EDS,
+    2 Nm rated); the per-mille target the drive's motor applies after each cycle's SYNC."""
+    rig, motor = sim(eds=CAPSTAN_EDS, sim_kwargs={"command_path": path})
     motor.start()
     drive = rig.sim
     base = drive._sync_count
     seen = []
-    for k in range(12):
-        motor.write_torque(0.1 * k)
-        if k == 8:
-            line.loss_rate = 1.0                    # the RPDO of cycle 8 is lost
+    for k, target in enumerate(targets_permille):
+        motor.write_torque(target * 2.0 / 1000.0)
+        if k in lose_at:
+            path.timing = CommandTiming(0, 0.0, 1.0)          # this cycle's command is lost
         motor.send_cycle()
         deadline = time.monotonic() + 1.0
         while drive._sync_count < base + k + 1 and time.monotonic() < deadline:
             time.sleep(0.0005)
-        line.loss_rate = 0.0
-        seen.append(round(drive.torque_command_Nm, 6))
+        if k in lose_at:
+            path.timing = CommandTiming(0, 0.0, 0.0)
+        seen.append(drive._applied_permille)
         motor.poll()
-    # cycle k's target (0.1 k Nm) reaches the motor at cycle k + 2; cycle 8's was lost: the
-    # drive kept cycle 7's target, which reaches the motor at cycle 10 in its place
-    assert seen[4:] == [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.7, 0.9]
+    return seen
+
+
+def test_sim_drive_applies_the_target_two_syncs_late_and_holds_it_through_a_lost_command(sim):
+    seen = _run_through_drive(sim, CommandPath(CommandTiming(0, 0.0, 0.0), 2), [50 * k for k in range(12)],
+                              lose_at={8})
+    # cycle k's target reaches the motor at cycle k + 2; cycle 8's was lost: the motor keeps
+    # cycle 7's target until cycle 9's arrives
+    assert seen[2:] == [0, 50, 100, 150, 200, 250, 300, 350, 350, 450]
+
+
+def test_sim_drive_command_delay_one_to_three_cycles_in_order(sim):
+    n = 300
+    path = CommandPath(CommandTiming(1, 0.5, 0.02), 2, seed=5)   # half the commands jittered, 2 % lost
+    seen = _run_through_drive(sim, path, list(range(1, n + 1)))
+    first_seen = {}
+    for cycle, target in enumerate(seen):
+        if target and target not in first_seen:
+            first_seen[target] = cycle
+    delays = {first_seen[t] - (t - 1) for t in first_seen}         # target t was sent in cycle t - 1
+    assert delays == {1, 2, 3}                                      # nominal 2, jitter +-1, none other
+    assert all(b >= a for a, b in zip(seen, seen[1:]))              # never an older target after a newer
+    assert path.lost > 0 and len(first_seen) < n - 3                # lost ones never reach the motor
 
 
 # ------------------------------------------------------------ motor.units: write

@@ -27,10 +27,10 @@ may write 0x608F/0x6091/0x60A8/0x60A9 over SDO; a unit code the drive does not k
 refused (abort 0x06090030). The positions and speeds given to :meth:`SimDrive.set_feedback`
 are the motor shaft's.
 
-CAN timing (optional, :mod:`capstan.drivers.sim.can_timing`): with a
-:class:`~capstan.drivers.sim.can_timing.CommandDelayLine` the target torque is taken over
-at each SYNC and reaches the motor 1-3 SYNCs later, and an RPDO is lost now and then (the
-drive keeps its previous target); without one the target is applied as the RPDO arrives.
+CAN timing (optional): with a :class:`~capstan.models.plant.command_path.CommandPath` the
+drive takes its target torque over at each SYNC (CiA 402 synchronous RPDO) and passes it
+through the path, which delays it (nominal delay plus seeded jitter, in order) or loses it
+(the motor keeps the previous target); without one the target is applied as the RPDO arrives.
 
 Threading: CAN reception (SDO, NMT, SYNC, RPDO) runs in the canopen notifier thread,
 :meth:`service` and :meth:`set_feedback` in the rig thread; a lock guards the state.
@@ -51,8 +51,8 @@ from canopen.sdo import SdoAbortedError
 from capstan.drivers.canopen.cia402 import (OpMode, State402, STATUSWORD_BITS, SUPPORTED_MODE_BIT,
                             decode_controlword, drive_transition)
 from capstan.drivers.canopen.emcy import encode_emcy
-from capstan.drivers.sim.can_timing import CommandDelayLine
 from capstan.drivers.sim.wire_units import wire_units_per_rad
+from capstan.models.plant.command_path import CommandPath
 from capstan.models.common.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -82,14 +82,15 @@ class SimDrive:
     :param si_units: power-on values of 0x60A8/0x60A9 overriding the EDS
         (``{0x60A9: 0xFDB44700}``: milli-rpm), as a drive configured by its vendor tool.
     :param supported_modes: value for 0x6502 overriding the EDS (e.g. ``1 << 9`` CST only).
-    :param command_delay: CAN timing of the command path (None: applied as the RPDO arrives).
+    :param command_path: CAN timing of the command path, one push per SYNC with the target in
+        per mille (None: the target is applied as the RPDO arrives).
     :raises ConfigError: for an invalid node id or rated torque, or units the drive cannot serve.
     """
 
     def __init__(self, bus_or_network: can.BusABC | canopen.Network, node_id: int, eds_path: str,
                  rated_torque_Nm: float, encoder_counts_per_rev: int = 1 << 17,
                  si_units: dict[int, int] | None = None, supported_modes: int | None = None,
-                 command_delay: CommandDelayLine | None = None) -> None:
+                 command_path: CommandPath | None = None) -> None:
         if not 1 <= int(node_id) <= 127:
             raise ConfigError("sim_drive.node_id", f"must be 1..127, got {node_id}")
         if not rated_torque_Nm > 0:
@@ -99,7 +100,7 @@ class SimDrive:
         self.node_id = int(node_id)
         self.rated_torque_Nm = float(rated_torque_Nm)
         self.encoder_counts_per_rev = int(encoder_counts_per_rev)
-        self.command_delay = command_delay
+        self.command_path = command_path
         self._applied_permille = 0
         self._lock = threading.RLock()
         if isinstance(bus_or_network, canopen.Network):
@@ -193,7 +194,7 @@ class SimDrive:
             if (self.nmt_state == NMT_OPERATIONAL and self.state == State402.OPERATION_ENABLED
                     and self.mode_display in _TORQUE_MODES):
                 lim = self._max_torque_permille()
-                target = self.target_torque_permille if self.command_delay is None else self._applied_permille
+                target = self.target_torque_permille if self.command_path is None else self._applied_permille
                 return max(-lim, min(lim, target)) * self.rated_torque_Nm / 1000.0
             return 0.0
 
@@ -289,7 +290,7 @@ class SimDrive:
             if self.nmt_state != NMT_OPERATIONAL:
                 return
             self._sync_count += 1
-            if self.command_delay is not None:
+            if self.command_path is not None:
                 self._take_over_target()
             frames = []
             for cob_id, ttype, entries in self._tpdos:
@@ -299,16 +300,10 @@ class SimDrive:
             self.network.send_message(cob_id, payload)
 
     def _take_over_target(self) -> None:
-        """At a SYNC: the current target enters the delay line; the one due reaches the motor."""
-        line = self.command_delay
-        if self.state != State402.OPERATION_ENABLED:
-            line.reset()
-            self._applied_permille = 0
-            return
-        line.take(self._sync_count, self.target_torque_permille)
-        due = line.due(self._sync_count)
-        if due is not None:
-            self._applied_permille = due
+        """At a SYNC: the current target (0 unless enabled) enters the command path; what it
+        delivers now reaches the motor."""
+        target = self.target_torque_permille if self.state == State402.OPERATION_ENABLED else 0
+        self._applied_permille = round(self.command_path.push(float(target)))
 
     def _build_pdos(self) -> None:
         for cob_id in list(self._rpdos):
@@ -351,10 +346,6 @@ class SimDrive:
         entries = self._rpdos.get(can_id)
         if entries is None or self.nmt_state != NMT_OPERATIONAL:
             return
-        if self.command_delay is not None:
-            with self._lock:
-                if self.command_delay.frame_lost():
-                    return  # lost on the bus: the drive keeps its previous target and controlword
         for idx, sub, offset, nbytes in entries:
             if idx < 0x1000:
                 continue  # dummy mapping

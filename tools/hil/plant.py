@@ -46,7 +46,6 @@ from capstan.controller.runtime.realtime import RealtimeMode, RealtimeSettings
 from capstan.controller.runtime.timing import DeadlineSleeper, process_cpu_s
 from capstan.drivers.canopen.cia402 import State402
 from capstan.drivers.serial.xsens_config import BAUD_CODES
-from capstan.drivers.sim.can_timing import CanTimingSettings
 from capstan.models.common.config_tools import get_choice, get_float, get_int, load_yaml, reject_unknown, section
 from capstan.models.common.errors import CapstanError, ConfigError, ModelError
 from capstan.tools.hil.hand import Hand, HandSettings
@@ -69,9 +68,6 @@ class HilSettings:
     :ivar tau_ext_amplitude_Nm: amplitude of the external sine torque on the link [Nm].
     :ivar tau_ext_frequency_hz: its frequency [Hz].
     :ivar rated_torque_Nm: the simulated drive's rated torque (0x6076) [Nm].
-    :ivar encoder_counts_per_rev: the simulated motor's encoder (0x608F) [increments/rev].
-    :ivar drive_timing: CAN timing of the drive's command path (``hil.drive.can_timing``,
-        ``command_delay_cycles``, ``command_loss_rate``, ``seed``; realistic by default).
     :ivar realtime: scheduling of the plant process.
     :ivar hand: the hand moving the link (None: no hand).
     :ivar imu_boot_baudrate: line rate the simulated MTi boots at (``hil.imu.boot_baudrate``,
@@ -83,8 +79,6 @@ class HilSettings:
     tau_ext_amplitude_Nm: float = 0.0
     tau_ext_frequency_hz: float = 0.5
     rated_torque_Nm: float = 20.0
-    encoder_counts_per_rev: int = 1 << 17
-    drive_timing: CanTimingSettings = CanTimingSettings()
     realtime: RealtimeSettings = RealtimeSettings(mode=RealtimeMode.WARN, priority=70, lock_memory=False,
                                                   helper_priority=69)
     hand: HandSettings | None = None
@@ -105,8 +99,7 @@ class HilSettings:
         te = section(cfg, "tau_ext", prefix, required=False)
         reject_unknown(te, {"amplitude_Nm", "frequency_hz"}, f"{prefix}.tau_ext")
         dr = section(cfg, "drive", prefix, required=False)
-        reject_unknown(dr, {"rated_torque_Nm", "encoder_counts_per_rev", "can_timing", "command_delay_cycles",
-                            "command_loss_rate", "seed"}, f"{prefix}.drive")
+        reject_unknown(dr, {"rated_torque_Nm"}, f"{prefix}.drive")
         rt = section(cfg, "realtime", prefix, required=False)
         rp = f"{prefix}.realtime"
         reject_unknown(rt, {"mode", "priority", "cpus"}, rp)
@@ -121,8 +114,6 @@ class HilSettings:
             get_float(te, "frequency_hz", f"{prefix}.tau_ext", d.tau_ext_frequency_hz, min_value=0.0),
             get_float(dr, "rated_torque_Nm", f"{prefix}.drive", d.rated_torque_Nm, min_value=0.0,
                       min_exclusive=True),
-            get_int(dr, "encoder_counts_per_rev", f"{prefix}.drive", d.encoder_counts_per_rev, min_value=1),
-            CanTimingSettings.from_mapping(dr, f"{prefix}.drive"),
             RealtimeSettings(RealtimeMode.parse(get_choice(rt, "mode", ("off", "warn", "enforce"), rp, "warn")),
                              prio, tuple(cpus), lock_memory=False, gil_switch_interval_s=0.0,
                              helper_priority=prio - 1),
@@ -163,10 +154,13 @@ class HilPlant:
         #: True once :meth:`run` stopped because its parent was gone
         self.orphaned = False
         self.bus = can.Bus(interface="capstan_unix", channel=channel)
-        # the drive's units are its EDS's (what the daemon must learn from it), not the daemon's config
+        # the drive's units are its EDS's (what the daemon must learn from it), not the daemon's
+        # config; its encoder (0x608F) is the plant's; the command path's jitter and losses are
+        # hil.plant.sensors.command, on top of the nominal delay the real bus already gives
+        timing = self.rig.command_timing
         self.drive = SimDrive(self.bus, mcfg.node_id, mcfg.eds, self.settings.rated_torque_Nm,
-                              self.settings.encoder_counts_per_rev,
-                              command_delay=self.settings.drive_timing.delay_line())
+                              self.rig.noise.encoder_counts_per_rev or 1 << 17,
+                              command_path=None if timing.is_ideal else self.rig.command_path(0))
         self.hand = Hand(self.settings.hand) if self.settings.hand is not None else None
         self._hand_t0_s: float | None = None
         self.steps = 0
@@ -259,8 +253,8 @@ class HilPlant:
                 "step_max_us": float(st.max()) if n else math.nan,
                 "cpu_s": process_cpu_s() - cpu0,
                 "drive_faults": [hex(c) for c in self.drive.faults_raised],
-                "drive_can_timing": (self.drive.command_delay.stats() if self.drive.command_delay is not None
-                                     else "ideal"),
+                "drive_command_path": (self.drive.command_path.describe() if self.drive.command_path is not None
+                                       else "ideal"),
                 "hand": self.hand.stats() if self.hand is not None else None,
                 "effects": self.rig.effects.describe()}
 
