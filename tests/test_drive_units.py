@@ -178,6 +178,20 @@ def test_peer_drive_units_read_byte_by_byte_and_rpm_scaled(peer_rig, channel):
     assert motor.state == State402.OPERATION_ENABLED
 
 
+def test_peer_drive_behind_a_5_to_1_gear_reports_the_shaft(peer_rig):
+    # the drive's 0x6091 = 5:1: rpm and tenths of a degree are of the shaft behind the gear
+    peer, motor = peer_rig(peer_kwargs={"power_on": {(0x6091, 1): 5, (0x6091, 2): 1}})
+    peer.motor_speed_rev_s = 0.5                          # the shaft turns 0.1 rev/s = 6 rpm
+    motor.start()
+    run_cycles(motor, 20)
+    u = motor.drive_units
+    assert u.gear_ratio == 5.0 and u.velocity_units_per_rev_s == pytest.approx(12.0, rel=1e-12)
+    assert motor.reading.velocity_units == 6
+    assert motor.reading.velocity_rad_s == pytest.approx(0.1 * 2 * math.pi, rel=1e-12)
+    # 1000 of 4096 increments of the motor: 0.2441 motor rev = 0.04883 shaft rev = 175.8 -> 176 tenths
+    assert motor.reading.position_counts == 176
+
+
 # --------------------------------------------------------------------- CAN timing
 def _run_through_drive(sim, path, targets_permille, lose_at=()):
     """Send one target per cycle through the driver and the simulated drive (capstan EDS,
