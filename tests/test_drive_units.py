@@ -206,9 +206,10 @@ def _run_through_drive(sim, path, targets_permille, lose_at=()):
         if k in lose_at:
             path.timing = CommandTiming(0, 0.0, 1.0)          # this cycle's command is lost
         motor.send_cycle()
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + 5.0          # a bound on a stalled host, not a timing claim
         while drive._sync_count < base + k + 1 and time.monotonic() < deadline:
             time.sleep(0.0005)
+        assert drive._sync_count == base + k + 1, "the drive did not see this cycle's SYNC"
         if k in lose_at:
             path.timing = CommandTiming(0, 0.0, 0.0)
         seen.append(drive._applied_permille)
