@@ -49,7 +49,7 @@ _SUMMARIES: dict[str, str] = {
     "identify": "fit model parameters to measured runs",
     "close": "close the model loop: residual -> missing effect -> before/after report",
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
-    "config": "list or print the shipped configuration files",
+    "config": "list or print the shipped configuration files, or the reference of every key",
     "recover": "rewrite a log cut off by a crash into a valid indexed file",
     "archive": "rewrite a live log as a lossless columnar archive",
 }

@@ -4,6 +4,7 @@ Every error raised on purpose by capstan code derives from :class:`CapstanError`
 
     CapstanError
      +-- ConfigError            a configuration key is missing or invalid (key + reason)
+     |    +-- ConfigFileError       a configuration file is missing, unreadable or not YAML
      +-- DataFormatError        a measurement table, import description or log is unreadable
      +-- ModelError             a model cannot be built or evaluated
      |    +-- OperatingRangeError   a scenario leaves the model's range (e.g. cable slack)
@@ -41,6 +42,20 @@ class ConfigError(CapstanError):
         self.key = key
         self.reason = reason
         super().__init__(f"config key '{key}': {reason}")
+
+
+class ConfigFileError(ConfigError):
+    """A configuration file cannot be used as a whole (missing, unreadable, not a YAML mapping,
+    not shipped).
+
+    :param path: the file as the user named it.
+    :param reason: human-readable reason.
+    """
+
+    def __init__(self, path: str, reason: str) -> None:
+        self.key = path
+        self.reason = reason
+        CapstanError.__init__(self, f"config file '{path}': {reason}")
 
 
 class DataFormatError(CapstanError):
