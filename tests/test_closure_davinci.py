@@ -1,4 +1,4 @@
-"""Real measured data: the da Vinci cable-tool runs of ``../shared/datasets/davinci-cable-tool``
+"""Real measured data: the da Vinci cable-tool runs of ``tests/data/davinci-cable-tool``
 (MRDLab, ODbL 1.0 / DbCL 1.0) imported through ``config/imports/davinci.yaml`` and closed
 with ``capstan close`` on files held out from the fit."""
 
@@ -15,12 +15,11 @@ from capstan.tools.cli import main
 from capstan.tools.offline.run_inputs import load_runs
 
 REPO = Path(__file__).resolve().parent.parent
-DATA = REPO.parent / "shared" / "datasets" / "davinci-cable-tool"
+DATA = REPO / "tests" / "data" / "davinci-cable-tool"
 DESC = REPO / "config" / "imports" / "davinci.yaml"
 TRAIN = ["Tool_4_Maryland_L2_00.TXT", "Tool_4_Maryland_L2_12.TXT", "Tool_4_Maryland_L2_23.TXT"]
 TEST = ["Tool_4_Maryland_L2_33.TXT", "Tool_4_Maryland_L2_43.TXT"]
 
-pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared/datasets not beside the repo")
 
 
 def test_import_maps_columns_to_si_channels_with_sane_signs() -> None:
