@@ -39,7 +39,7 @@ def test_import_maps_columns_to_si_channels_with_sane_signs() -> None:
 
 def test_close_on_held_out_files_writes_report_and_improves(tmp_path: Path, capsys) -> None:
     rep = tmp_path / "report"
-    args = ["close", *(str(DATA / f) for f in TRAIN), "--test", *(str(DATA / f) for f in TEST),
+    args = ["close", *(str(DATA / f) for f in TRAIN), *(a for f in TEST for a in ("--test", str(DATA / f))),
             "--import", str(DESC), "--report", str(rep), "--json", "--no-progress"]
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)

@@ -18,6 +18,7 @@ Every error raised on purpose by capstan code derives from :class:`CapstanError`
      |    +-- StateTransitionError  a DS402 transition did not complete in its timeout
      +-- ControlFaultError      the control loop latched a fault (carries the last N cycles)
      +-- RealtimeError          real-time scheduling was required but is not available
+     +-- UsageError             a command-line argument is invalid (the parser cannot tell)
 
 Library code raises these; only the command line turns them into exit codes.
 """
@@ -119,3 +120,8 @@ class ControlFaultError(CapstanError):
 
 class RealtimeError(CapstanError):
     """Real-time scheduling (SCHED_FIFO, mlockall, affinity) was enforced but is unavailable."""
+
+
+class UsageError(CapstanError):
+    """A command-line argument is invalid in a way the argument parser cannot check
+    (``--duration-s 0``); the command line reports it like a config error, exit code 2."""
