@@ -68,3 +68,13 @@ def test_units_from_key_names():
     assert unit_of("controller.safety.dtau_max_Nm_s") == "N m/s"
     assert unit_of("controller.feedforward.zeta_s") == ""          # a factor, not seconds
     assert unit_of("loop.period_s") == "s"
+
+
+def test_committed_controller_example_is_the_defaults():
+    """config/controller.yaml is generated from the code's defaults, so its values and the
+    meanings beside them cannot drift from the code."""
+    committed = (DOC.parent.parent / "config" / "controller.yaml").read_text()
+    from capstan.tools.commands.config_reference import controller_example
+    assert committed == controller_example(), (
+        "config/controller.yaml is out of date: run "
+        "`capstan config reference --controller-example > config/controller.yaml`")

@@ -19,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="list: the shipped names; show: print one; path: where it is installed; "
                              "reference: every key of a daemon config (Markdown, docs/configuration.md)")
     parser.add_argument("name", nargs="?", help="shipped file, e.g. hil.yaml or scenarios/testbed_multisine.yaml")
+    parser.add_argument("--controller-example", action="store_true",
+                        help="with reference: print the controller section at its defaults (config/controller.yaml)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("".join(n + "\n" for n in shipped_names()))
         return 0
     if args.action == "reference":
-        from capstan.tools.commands.config_reference import reference
-        sys.stdout.write(reference())
+        from capstan.tools.commands.config_reference import controller_example, reference
+        sys.stdout.write(controller_example() if args.controller_example else reference())
         return 0
     if not args.name:
         sys.stderr.write(f"capstan config {args.action}: NAME is required (see 'capstan config list')\n")
