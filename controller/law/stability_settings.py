@@ -1,5 +1,5 @@
 """What the torque loop's stability check assumes and requires: the ``controller.stability``
-section (every key in docs/configuration.md; used by :mod:`capstan.controller.law.stability`)."""
+section (documented in ``config/controller.yaml``; used by :mod:`capstan.controller.law.stability`)."""
 
 from __future__ import annotations
 

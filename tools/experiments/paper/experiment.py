@@ -47,7 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="coarse grids (6 routing groups, N in 1,2,4,10,20, 30-node plant) for CI")
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise / unmodelled-effects seed")
-    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--only", type=str, default=None,
                         help=f"comma-separated subset of {','.join(FIGURES)} (default: all)")
 
@@ -177,12 +176,6 @@ def run(args: argparse.Namespace) -> int:
     settings = Settings.quick_settings() if args.quick else Settings()
     settings = dataclasses.replace(settings, seed=args.seed)
     doc = run_paper(Path(args.out), settings, only)
-    if getattr(args, "json", False):
-        print(json.dumps({"report": str(Path(args.out) / "report.md"), "total_wall_s": doc["total_wall_s"],
-                          "figures": {k: {"wall_s": r["wall_s"], "rows": len(r["rows"]), "figures": list(r["figures"])}
-                                      for k, r in doc["figures"].items()},
-                          "failed": dict(doc["failed"])}))
-        return 1 if doc["failed"] else 0
     for key, res in doc["figures"].items():
         print(f"{key:<8} {res['wall_s']:7.1f} s  {len(res['rows']):3d} rows  {', '.join(res['figures'])}")
     for key, msg in doc["failed"].items():
