@@ -37,6 +37,7 @@ def test_import_maps_columns_to_si_channels_with_sane_signs() -> None:
     assert "current_in" in tab.columns and "current_out_cmd" in tab.columns
 
 
+@pytest.mark.slow
 def test_close_on_held_out_files_writes_report_and_improves(tmp_path: Path, capsys) -> None:
     rep = tmp_path / "report"
     args = ["close", *(str(DATA / f) for f in TRAIN), *(a for f in TEST for a in ("--test", str(DATA / f))),
