@@ -8,6 +8,8 @@ editing the callee, with and without :func:`capstan.models.common.numba_cache.co
 
 from __future__ import annotations
 
+import pytest
+
 import os
 import subprocess
 import sys
@@ -47,6 +49,7 @@ def _run(tmp: Path, configured: bool) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_an_edit_in_a_called_module_takes_effect_only_with_the_keyed_cache(tmp_path: Path) -> None:
     pkg = tmp_path / "pkg" / "libpkg"
     pkg.mkdir(parents=True)
