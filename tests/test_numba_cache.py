@@ -8,13 +8,13 @@ editing the callee, with and without :func:`capstan.models.common.numba_cache.co
 
 from __future__ import annotations
 
-import pytest
-
 import os
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+import pytest
 
 from capstan.models.common import numba_cache
 
