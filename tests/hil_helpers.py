@@ -60,7 +60,7 @@ def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProces
 
 def hil_argv(config: Path, duration_s: float, *extra: str) -> list[str]:
     """The command line of ``capstan hil --config CONFIG --duration D [EXTRA...]``."""
-    return [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(config), "--duration", str(duration_s),
+    return [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(config), "--duration-s", str(duration_s),
             *extra]
 
 

@@ -31,6 +31,7 @@ SHIPPED_LINEAR = {"kp": 0.75, "deflection_damping_Nms_rad": 60.0, "deflection_li
                   "band_high_hz": BAND_HZ[1]}
 
 
+@pytest.mark.slow
 def test_the_analysis_band_path_is_the_steps():
     """The compiled step's command for a torque-reference pulse is ``(1 + k_b BP) ref`` (kp 0, no
     damping) with BP its two biquads, to rounding; the loop model's ``k_b BP(z)`` (the biquads
@@ -94,6 +95,7 @@ def test_error_rejection_is_one_over_one_plus_kp_plus_the_band(f_hz):
     assert amp == pytest.approx(want, rel=0.03)
 
 
+@pytest.mark.slow
 def test_start_up_check_on_band_gains():
     """k_b 2.5 (shipped) meets PM >= 45 deg / GM >= 6 dB with the fade; k_b 6 is refused (unstable
     at 0.2 Hz in partial sheath stick: the band's gain meets the overdamped motor-on-cable pole with

@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 from capstan.tools.bench import distributed as bench_distributed
 
 
+@pytest.mark.slow
 def test_bench_smoke_run_reports_accuracy_rates_and_radau(capsys) -> None:
     assert bench_distributed.main(["--nodes", "3", "--duration", "1.0", "--window", "0.8",
                                    "--check-window", "0.8", "--repeats", "1"]) == 0

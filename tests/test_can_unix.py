@@ -138,6 +138,7 @@ def test_two_processes_exchange_frames(channel):
             proc.kill()
 
 
+@pytest.mark.slow
 def test_processes_joining_at_once_get_exactly_one_link_per_pair(channel):
     code = textwrap.dedent(f"""
         import sys, time, can

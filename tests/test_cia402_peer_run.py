@@ -36,7 +36,7 @@ def _run_to_end(config: Path) -> tuple[subprocess.CompletedProcess, dict]:
     reset at start-up is not there to reset again in a rerun."""
     logs: list[str] = []
     for _ in range(3):
-        res = subprocess.run(_argv(config, "--duration", "1.0", "--json"), cwd=REPO, capture_output=True,
+        res = subprocess.run(_argv(config, "--duration-s", "1.0", "--json"), cwd=REPO, capture_output=True,
                              text=True, timeout=180)
         logs.append(res.stderr)
         summary = json.loads(res.stdout) if res.stdout.strip() else {}
@@ -111,7 +111,7 @@ def test_capstan_run_after_sigkill_and_after_sigterm(tmp_path: Path) -> None:
         assert "0x8130" not in res.stderr and summary["faults"] == []
         # ---- 5. the drive limits the torque itself (statusword bit 11): warned and counted in the
         # stats records of the log (decoded with a standard protobuf decoder from the logged schema)
-        proc = subprocess.Popen(_argv(config, "--duration", "2.5", "--json"), cwd=REPO, stdout=subprocess.PIPE,
+        proc = subprocess.Popen(_argv(config, "--duration-s", "2.5", "--json"), cwd=REPO, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         try:
             lines = wait_for_stderr(proc, "armed after")

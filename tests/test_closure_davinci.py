@@ -1,4 +1,4 @@
-"""Real measured data: the da Vinci cable-tool runs of ``../shared/datasets/davinci-cable-tool``
+"""Real measured data: the da Vinci cable-tool runs of ``tests/data/davinci-cable-tool``
 (MRDLab, ODbL 1.0 / DbCL 1.0) imported through ``config/imports/davinci.yaml`` and closed
 with ``capstan close`` on files held out from the fit."""
 
@@ -15,12 +15,11 @@ from capstan.tools.cli import main
 from capstan.tools.offline.run_inputs import load_runs
 
 REPO = Path(__file__).resolve().parent.parent
-DATA = REPO.parent / "shared" / "datasets" / "davinci-cable-tool"
+DATA = REPO / "tests" / "data" / "davinci-cable-tool"
 DESC = REPO / "config" / "imports" / "davinci.yaml"
 TRAIN = ["Tool_4_Maryland_L2_00.TXT", "Tool_4_Maryland_L2_12.TXT", "Tool_4_Maryland_L2_23.TXT"]
 TEST = ["Tool_4_Maryland_L2_33.TXT", "Tool_4_Maryland_L2_43.TXT"]
 
-pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared/datasets not beside the repo")
 
 
 def test_import_maps_columns_to_si_channels_with_sane_signs() -> None:
@@ -38,9 +37,10 @@ def test_import_maps_columns_to_si_channels_with_sane_signs() -> None:
     assert "current_in" in tab.columns and "current_out_cmd" in tab.columns
 
 
+@pytest.mark.slow
 def test_close_on_held_out_files_writes_report_and_improves(tmp_path: Path, capsys) -> None:
     rep = tmp_path / "report"
-    args = ["close", *(str(DATA / f) for f in TRAIN), "--test", *(str(DATA / f) for f in TEST),
+    args = ["close", *(str(DATA / f) for f in TRAIN), *(a for f in TEST for a in ("--test", str(DATA / f))),
             "--import", str(DESC), "--report", str(rep), "--json", "--no-progress"]
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)

@@ -40,6 +40,9 @@ from closure_plants import MU, R_M, double_bend, eq23_field, multisine
 from test_closure_inmodel import unit_run
 from tests.independent_distributed import IndepModel, Params
 
+#: the module's runs are simulated once (about 25 s) and each closure takes several seconds
+pytestmark = pytest.mark.slow
+
 DT = 1e-3
 NOISE_NM = 0.01
 K_OUT = 20.0

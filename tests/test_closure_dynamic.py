@@ -1,7 +1,7 @@
 """The closure's dynamic baseline: the friction-state unit against physics (limiting cases,
 an independent linear simulation), the fit on runs of the distributed model (another
 model family, N = 12, double-bend curvature, eq-23 field) against the paper's eq 19, and
-on the shared da Vinci files (real data)."""
+on the da Vinci files of tests/data (real data)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from capstan.models.transmission.stick_slip import simulate_unit
 from closure_plants import MU, R_M, distributed_run, double_bend, eq23_field
 
 REPO = Path(__file__).resolve().parent.parent
-DATA = REPO.parent / "shared" / "datasets" / "davinci-cable-tool"
+DATA = REPO / "tests" / "data" / "davinci-cable-tool"
 DESC = REPO / "config" / "imports" / "davinci.yaml"
 
 
@@ -125,7 +125,6 @@ def test_driving_form_follows_the_channels_present() -> None:
         choose_form(signals_from_tables([no_qin]))
 
 
-@pytest.mark.skipif(not DATA.is_dir(), reason="shared/datasets not beside the repo")
 @pytest.mark.slow
 def test_davinci_held_out_skill_on_tau_in_with_plausible_parameters() -> None:
     from capstan.tools.offline.run_inputs import load_runs

@@ -60,6 +60,7 @@ def late_runs():
     return sig.take(sig.run_id == 0), sig.take(sig.run_id == 1)
 
 
+@pytest.mark.slow
 def test_a_late_sensor_is_found_at_its_lag_between_the_grid_points_and_the_refit_reaches_the_noise_floor(
         late_runs) -> None:
     train, test = late_runs

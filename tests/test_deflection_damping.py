@@ -46,6 +46,7 @@ def _pulse_run(cfg: ControllerConfig, field: str, x: np.ndarray) -> np.ndarray:
     return u
 
 
+@pytest.mark.slow
 def test_the_analysis_filters_are_the_steps():
     """The loop model's paths reproduce the compiled step to rounding: the motor velocity
     enters as -b dq_m; the link's as b H_l (with the IMU running every cycle here, H_l without the
@@ -165,6 +166,7 @@ def test_no_braking_in_a_steady_motion_and_nothing_at_rest():
     assert np.max(np.abs(np.diff(d))) < 0.1 * 100.0 * 0.05       # faded in, not a step
 
 
+@pytest.mark.slow
 def test_link_lag_compensation_is_the_steps_and_is_checked():
     """``deflection_link_lag_compensation``: the link's velocity in the damping is led by
     (1 / (2 pi f_l) + dt) x J_c's link acceleration. The analysis's path (H_l + lead A) is the step's
@@ -195,6 +197,7 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     assert rep.ok and rep.worst_phase_margin_deg > 48.0 and rep.worst_gain_margin_dB > 8.0
 
 
+@pytest.mark.slow
 def test_start_up_check_covers_the_faded_gains():
     """kp and b fade to 0 at rest, so the loop at rest is the one without them. J_c 0.34 (link rate at
     150 Hz, no lag compensation) meets the margins with kp and b on (PM 49.9 deg, GM 9.1 dB) but not at

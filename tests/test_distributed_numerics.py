@@ -187,6 +187,7 @@ def _scipy_reference(model: DistributedModel, t: np.ndarray, u: np.ndarray) -> n
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.slow
 def test_fixed_adaptive_and_scipy_radau_agree() -> None:
     n = 3
     model = DistributedModel(TransmissionParams.uniform(n, 4.0, 150.0), BoundaryParams())
@@ -203,6 +204,7 @@ def test_fixed_adaptive_and_scipy_radau_agree() -> None:
     assert np.ptp(ref) > 5.0       # the run does transmit torque through stick and slip
 
 
+@pytest.mark.slow
 def test_step_equals_simulate_fixed_with_held_input() -> None:
     """step() and simulate() share one kernel: a held input gives the same state, and
     one fixed 1 ms step per sample stays within the integrator's accuracy of a tight

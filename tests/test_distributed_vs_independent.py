@@ -30,6 +30,7 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("n_nodes", [1, 5])
+@pytest.mark.slow
 def test_multisine_matches_the_independent_model(n_nodes):
     sc, t, u = scenario_inputs(SCENARIO, n_nodes, 2.5)
     tr, bd = sc.plant.transmission, sc.plant.boundary
@@ -42,6 +43,7 @@ def test_multisine_matches_the_independent_model(n_nodes):
     assert _rmse(_ours(tr, bd, t, u), ref) < RMSE_NM
 
 
+@pytest.mark.slow
 def test_asymmetric_pretension_matches_the_independent_model():
     t = np.arange(1501) / 1000.0
     u = 4.0 * np.sin(2 * np.pi * 1.0 * t)
@@ -57,6 +59,7 @@ def test_asymmetric_pretension_matches_the_independent_model():
     assert _rmse(ours, ref) < RMSE_NM
 
 
+@pytest.mark.slow
 def test_oracle_is_sensitive_to_what_an_implementation_could_get_wrong():
     """Friction smoothness p = 20 instead of 100 moves tau_out far beyond the bound, so
     the agreement above is not a tautology of two insensitive solvers."""

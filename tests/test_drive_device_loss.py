@@ -110,4 +110,4 @@ def test_device_loss_in_the_fault_text_bits_and_exit_code(tmp_path: Path, monkey
     monkeypatch.setattr(run_cmd, "Daemon", _Daemon)
     monkeypatch.setattr(run_cmd.DaemonConfig, "load", staticmethod(lambda path: None))
     import argparse
-    assert run_cmd.run(argparse.Namespace(config="x.yaml", duration=None, json=True)) == run_cmd.EXIT_DEVICE_LOST == 4
+    assert run_cmd.run(argparse.Namespace(config="x.yaml", duration_s=None, json=True)) == run_cmd.EXIT_DEVICE_LOST == 4

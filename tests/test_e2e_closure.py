@@ -82,11 +82,13 @@ def _check_breakaways(run: dict[str, np.ndarray], effect: bool, lo: float, hi: f
 
 
 # ------------------------------------------------------------------ the rig's effect
+@pytest.mark.slow
 def test_rig_breakaway_friction_rises_by_the_injected_dwell_stiction() -> None:
     with_effect = _lockstep_run(CFG, 48.0)
     assert _check_breakaways(with_effect, True, 0.75, 1.1) >= 6
 
 
+@pytest.mark.slow
 def test_rig_without_effect_has_no_breakaway_excess() -> None:
     assert _check_breakaways(_lockstep_run(without_effects(CFG), 48.0), False, 0.0, 0.0) >= 6
 

@@ -127,6 +127,7 @@ def test_negative_hardening_is_refused() -> None:
     assert _run(t, np.zeros(t.size), np.zeros(t.size), -1.0)[0] == 0
 
 
+@pytest.mark.slow
 def test_node_mapping_against_the_distributed_cubic_cable() -> None:
     # frictionless pull-pull pair (mu = 0), uniform pretension T0, cable law k_c D (1 + c D^2)
     c, T0, n = 1e5, 150.0, 6

@@ -79,15 +79,16 @@ def test_setup_json_and_another_running_rate(pty: PtyPair, capsys: pytest.Captur
     assert {"item": "RATE_OF_TURN|FLOAT32", "rate_hz": 400} in rep["output_configuration"]
 
 
-def test_setup_without_device_names_the_rates_and_exits_2(pty: PtyPair, caplog: pytest.LogCaptureFixture,
+def test_setup_without_device_names_the_rates_and_exits_2(pty: PtyPair, capsys: pytest.CaptureFixture,
                                                           tmp_path: Path) -> None:
     cfg = tmp_path / "imu.yaml"
     cfg.write_text("imu: {backend: xsens, port: /dev/null, timeout_s: 0.02, retries: 1}\n")
     rc = main(["imu", "setup", pty.slave_path, "--config", str(cfg)])
     assert rc == 2
-    assert "no answer to GoToConfig at 921600, 115200" in caplog.text
+    assert "no answer to GoToConfig at 921600, 115200" in capsys.readouterr().err
 
 
-def test_setup_refuses_a_rate_the_device_cannot_run(pty: PtyPair, caplog: pytest.LogCaptureFixture) -> None:
+def test_setup_refuses_a_rate_the_device_cannot_run(pty: PtyPair, capsys: pytest.CaptureFixture) -> None:
     assert main(["imu", "setup", pty.slave_path, "--baudrate", "115200"]) == 2
-    assert "imu.baudrate" in caplog.text and "cannot carry 400 Hz" in caplog.text
+    err = capsys.readouterr().err
+    assert "imu.baudrate" in err and "cannot carry 400 Hz" in err

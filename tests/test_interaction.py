@@ -131,6 +131,7 @@ def fast_delayed():
             for k, (ff, ex) in runs.items()}
 
 
+@pytest.mark.slow
 def test_shipped_loop_is_compared_with_its_own_uncompensated_run(fast_delayed):
     """The uncompensated reference of the shipped controllers is the same delay-robust loop with
     gravity only (no friction feedforward, no inertia compensation), not the paper's kp-5 PID
@@ -172,6 +173,7 @@ def test_fast_motion_is_inertia_dominated_so_friction_compensation_trades_accel_
         assert jc[f"mean_abs_tau_h_{phase}_Nm"] < off[f"mean_abs_tau_h_{phase}_Nm"]
 
 
+@pytest.mark.slow
 def test_torque_feedback_with_deflection_damping_hides_most_of_the_motor(fast_delayed):
     """kp 0.75 on tau_in, made possible in the delayed loop by the deflection-rate damping: the hand
     feels about (J_m - J_c) / (1 + kp) of the motor instead of J_m - J_c, so in fast strokes (inertia
@@ -207,6 +209,7 @@ def test_phase_means_split_the_reference_profile():
     assert math.isnan(phase_means(np.ones(5), np.zeros(5))["mean_abs_tau_h_accel_Nm"])
 
 
+@pytest.mark.slow
 def test_term_breakdown_reports_each_variants_margins():
     from capstan.tools.experiments.interaction_terms import TERM_VARIANTS, format_terms, run_terms
     pick = tuple(v for v in TERM_VARIANTS if v.name in ("shipped", "no_inertia_comp", "paper_pid_gravity_only"))
@@ -220,6 +223,7 @@ def test_term_breakdown_reports_each_variants_margins():
     assert "MISSED" in text and "paper_pid_gravity_only" in text
 
 
+@pytest.mark.slow
 def test_terms_cli_prints_strict_json(capsys, monkeypatch):
     """``--terms --json``: one strict JSON object (the gravity-only loop has no crossover: PM inf -> null)."""
     import json

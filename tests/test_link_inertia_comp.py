@@ -74,6 +74,7 @@ def test_nothing_at_rest():
     assert np.array_equal(rest_run({"link_inertia_comp_kg_m2": J_LC}, 12), rest_run({"link_inertia_comp_kg_m2": 0.0}, 12))
 
 
+@pytest.mark.slow
 def test_start_up_check_on_the_link_inertia_compensation():
     """The shipped set meets PM >= 45 deg, GM >= 6 dB and the grip points (PM >= 30 deg). Refused naming the
     hand: J_lc 0.08 low-passed at 40 Hz (a firm grip's mode, 6-10 Hz, goes unstable). Refused: the same gain

@@ -118,6 +118,7 @@ def test_simulation_restarts_at_a_gap_as_a_run_of_its_own() -> None:
     assert np.array_equal(joined, alone)
 
 
+@pytest.mark.slow
 def test_long_run_fit_matches_the_fit_on_every_sample() -> None:
     """The windowed start + LM finish against scipy's fit on all samples of the same run."""
     sig = signals_from_tables([synthetic_run(2.0, seed=5)])

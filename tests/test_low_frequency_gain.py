@@ -78,6 +78,7 @@ def test_integral_limit_in_slip_is_the_rigid_joints_routh_bound(kp, b):
     assert lo == pytest.approx(limit, rel=0.05)
 
 
+@pytest.mark.slow
 def test_start_up_check_refuses_a_pi_with_its_zero_at_the_slow_pole():
     """With the shipped loop and its delay, ki 0.5 1/s already misses the phase margin (at rest, where
     kp, b and the band gain fade out and the integral stays: 22 deg, GM 0.5 dB, slip 0.2 Hz; without the

@@ -108,6 +108,7 @@ def test_the_set_decays_at_its_limiting_points_in_the_compiled_step(p):
     assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
 
 
+@pytest.mark.slow
 def test_start_up_check_on_sets_of_this_structure():
     """The set meets PM >= 45 deg / GM >= 6 dB over the grid, with J_c faded with kp and b
     (x0.5, x0). Refused: the same J_c with the link rate at 150 Hz and kp 1.0 (phase margin in slip);

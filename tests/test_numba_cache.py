@@ -14,6 +14,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from capstan.models.common import numba_cache
 
 
@@ -47,6 +49,7 @@ def _run(tmp: Path, configured: bool) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_an_edit_in_a_called_module_takes_effect_only_with_the_keyed_cache(tmp_path: Path) -> None:
     pkg = tmp_path / "pkg" / "libpkg"
     pkg.mkdir(parents=True)

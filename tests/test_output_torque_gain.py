@@ -92,6 +92,7 @@ def test_a_push_raises_the_reference_in_its_direction():
         assert u == pytest.approx((1.0 + 0.75) * K_O * 0.2 * sign, rel=2e-3)
 
 
+@pytest.mark.slow
 def test_start_up_check_on_output_torque_gains():
     """The shipped k_o 2 at 10 Hz meets PM >= 45 deg / GM >= 6 dB over the grid with the fade; k_o 6 at
     10 Hz is refused (the slip points' free-link mode near 11 Hz), and so is k_o 12 at 1 Hz (half faded,
@@ -224,6 +225,7 @@ def _grip_point(k_h: float, b_h: float, k_c: float, j_m: float) -> PlantPoint:
                       link_stiffness_Nm_rad=0.945 + k_h)
 
 
+@pytest.mark.slow
 def test_a_firm_grip_in_the_analysis():
     """A hand holding the link closes a loop through its impedance that the free-link grid does not
     have. The loop model with the grip as link stiffness / damping: the shipped k_o 2 at 10 Hz keeps
@@ -319,6 +321,7 @@ def test_the_analysis_peak_path_is_the_steps():
     assert abs(h_step[at]) > 2.0 * abs(plain[at])
 
 
+@pytest.mark.slow
 def test_start_up_check_on_the_peak():
     """The shipped peak (1 at 1.5 Hz, Q 1.5, with J_c 0.45 from the motor) meets the free-link grid and
     the grip points; a broader or stronger peak nearer the grip modes is refused naming the hand: 1.5 at

@@ -175,6 +175,7 @@ def test_eq25_reading_parse() -> None:
         Eq25Reading.parse("mean")
 
 
+@pytest.mark.slow
 def test_sliding_friction_of_the_independent_dense_model_is_the_friction_preserving_reading() -> None:
     """Physics check on a model we did not write: the dense distributed implementation in
     tests/independent_distributed.py (12 nodes per cable, a two-bend profile theta = 6 rad)

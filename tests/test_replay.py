@@ -222,12 +222,12 @@ def test_override_writes_whatif_log_and_plot(tmp_path: Path, run_log, capsys) ->
     assert json.loads(capsys.readouterr().out)["max_abs_dtau_m_Nm"] == 0.0
 
 
-def test_invalid_override_names_the_key(tmp_path: Path, run_log, caplog) -> None:
+def test_invalid_override_names_the_key(tmp_path: Path, run_log, capsys) -> None:
     path, _ = run_log
     ovr = tmp_path / "bad.yaml"
     ovr.write_text("controller:\n  feedback:\n    kp: -1\n")
     assert main(["replay", str(path), "--config", str(ovr)]) == 2
-    assert "controller.feedback.kp" in caplog.text
+    assert "controller.feedback.kp" in capsys.readouterr().err
 
 
 def test_merge_config_is_deep_and_does_not_mutate() -> None:

@@ -123,6 +123,7 @@ def test_open_loop_limit_is_the_motor_on_the_cable():
     assert 2.8 < wn / (2 * math.pi) < 3.0
 
 
+@pytest.mark.slow
 def test_lockstep_gains_ring_where_the_hil_log_rang():
     """The lock-step gains with the 2-cycle delay on the sheath-stick plant (N + 1 = 11
     times K_c for the 10-node HIL model) grow at 40-55 Hz: the HIL log's command peaked at
@@ -150,6 +151,7 @@ def _daemon_cfg(**controller) -> dict:
     return raw
 
 
+@pytest.mark.slow
 def test_start_up_refuses_gains_outside_the_margins_with_the_margin_they_would_have():
     cfg = DaemonConfig.from_mapping(_daemon_cfg(**LOCKSTEP_LDO))
     with pytest.raises(ConfigError) as err:
@@ -158,6 +160,7 @@ def test_start_up_refuses_gains_outside_the_margins_with_the_margin_they_would_h
     assert "phase margin" in err.value.reason and "UNSTABLE" in err.value.reason
 
 
+@pytest.mark.slow
 def test_lab_override_starts_them_and_says_why():
     raw = _daemon_cfg(**LOCKSTEP_LDO)
     raw["lab_override"] = {"margins": True, "reason": "reproduce the 48 Hz ring"}
@@ -167,6 +170,7 @@ def test_lab_override_starts_them_and_says_why():
     assert not check_margins(ControllerConfig.from_mapping(raw["controller"]), override=True).ok
 
 
+@pytest.mark.slow
 def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     """kp alone (no damping) on the lightly damped plant misses the gain margin; the
     deflection-rate damping makes kp 1.25 meet both (PM 48 deg at b 100; shipped: kp 0.75, b 60), while a larger kp or
@@ -224,6 +228,7 @@ def test_sheath_stick_stiffness_is_what_the_distributed_model_shows():
 
 
 
+@pytest.mark.slow
 def test_loop_command_prints_strict_json_and_fails_on_missed_margins(capsys, tmp_path):
     import json
 
@@ -307,6 +312,7 @@ def test_inertia_compensation_poles_agree_with_the_step(fb, p, grows):
         assert np.max(np.abs(v[-1000:])) < 0.2 * np.max(np.abs(v[:1000]))
 
 
+@pytest.mark.slow
 def test_inertia_compensation_margins_and_its_limit():
     """J_c lowers the inertia the hand feels but eats margin: 0.3 kg m^2 from the link's
     acceleration meets PM >= 45 deg, GM >= 6 dB over the grid with the gravity model on, 0.34

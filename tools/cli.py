@@ -7,8 +7,14 @@ does not compile Numba code. Each command module provides::
     def add_arguments(parser: argparse.ArgumentParser) -> None
     def run(args: argparse.Namespace) -> int     # exit code
 
-Library errors (:class:`capstan.models.common.errors.CapstanError`) become a one-line message on
-stderr and exit code 2; anything else is a bug and keeps its traceback.
+The conventions every subcommand follows (``tests/test_cli_convention.py`` walks every
+``--help``): options spelled in lower-case words joined by ``-`` with the unit last where there is
+one (``--duration-s``); ``-v/--verbose`` accepted everywhere, also after a sub-subcommand;
+``--json`` on every command that reports a result; an option takes one value (a list is the
+option repeated), so it cannot swallow the positionals; an on/off option is a ``--x/--no-x``
+pair. Library errors (:class:`capstan.models.common.errors.CapstanError`) become one plain line
+on stderr, ``capstan CMD: what: why``, and exit code 2; anything else is a bug and keeps its
+traceback.
 """
 
 from __future__ import annotations
@@ -49,7 +55,7 @@ _SUMMARIES: dict[str, str] = {
     "identify": "fit model parameters to measured runs",
     "close": "close the model loop: residual -> missing effect -> before/after report",
     "experiment": "experiments: interaction (Fig. 13), paper (reproduce the paper)",
-    "config": "list or print the shipped configuration files",
+    "config": "list or print the shipped configuration files, or the reference of every key",
     "recover": "rewrite a log cut off by a crash into a valid indexed file",
     "archive": "rewrite a live log as a lossless columnar archive",
 }
@@ -67,6 +73,22 @@ def _top_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def build_parser(name: str) -> argparse.ArgumentParser:
+    """The argument parser of subcommand ``name``, with ``-v/--verbose`` on it and on every
+    sub-subcommand (``capstan experiment loop -v``)."""
+    module = importlib.import_module(COMMANDS[name])
+    parser = argparse.ArgumentParser(prog=f"capstan {name}", description=getattr(module, "HELP", None))
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    module.add_arguments(parser)
+    for action in parser._actions:                    # argparse keeps sub-parsers only here
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                if not any("--verbose" in a.option_strings for a in sub._actions):
+                    sub.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                                     help="debug logging")
+    return parser
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``capstan`` console script; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -79,9 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     name = argv[0]
     module = importlib.import_module(COMMANDS[name])
-    parser = argparse.ArgumentParser(prog=f"capstan {name}", description=getattr(module, "HELP", None))
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    module.add_arguments(parser)
+    parser = build_parser(name)
     args = parser.parse_args(argv[1:])
     logging.basicConfig(
         level=logging.DEBUG if (verbose or args.verbose) else logging.INFO,
@@ -91,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except CapstanError as exc:
-        logging.getLogger("capstan").error("%s: %s", type(exc).__name__, exc)
+        sys.stderr.write(f"capstan {name}: {exc}\n")
         return 2
     except KeyboardInterrupt:
         return 130

@@ -1,100 +1,11 @@
 """The frozen configuration of the controller (the ``controller:`` YAML section).
 
-Every key, its unit and default (``config/controller.yaml`` is the documented example)::
-
-    controller:
-      dt_s: 0.001                    # control period [s]
-      torque_loop: pid               # ldo (eqs 26-28) | pid (PID on the tau_in error); the defaults are
-                                     # the gains that meet the loop's margins (controller/law/stability.py)
-      plant:                         # nominal plant P(s) = K_c / (J_m s^2 + B_m s + K_c), eq (26)
-        stiffness_Nm_rad: 240.0      # K_c
-        motor_inertia_kg_m2: 0.73    # J_m
-        motor_damping_Nms_rad: 0.5   # B_m
-        r_in_m: 0.04                 # input pulley radius: tau_in = r_in (T_up_in - T_lo_in)
-        r_out_m: 0.04                # output pulley radius
-      ldo:
-        q_cutoff_hz: 10.0            # cutoff of the 2nd-order Butterworth Q(s)
-      feedback:                      # C(s) = kp + kd_s * s / (1 + s / (2 pi derivative_cutoff_hz)) [+ ki_1_s / s]
-                                     # (the derivative acts on the measured tau_in only)
-        kp: 0.75                     # proportional gain on the tau_in error [Nm/Nm]
-        kd_s: 0.0                    # derivative gain [Nm s/Nm]
-        derivative_cutoff_hz: 40.0   # first-order filter of the derivative
-        ki_1_s: 0.15                 # integral gain, PID loop only [Nm/(Nm s)]
-        integral_limit_Nm: 5.0       # anti-windup clamp of the integral term
-        inertia_comp_kg_m2: 0.45     # + J_c x acceleration on the command (0 = off), gated at rest
-        acceleration_cutoff_hz: 5.0  # 1st-order low-pass of the differentiated rate
-        acceleration_source: motor   # link: IMU rate (400 Hz) | motor: drive velocity
-        deflection_damping_Nms_rad: 80.0      # - b (dq_m - link's - reference's deflection rate) (0 = off)
-        deflection_link_cutoff_hz: 80.0       # low-pass of the link's rate in it
-        deflection_reference_cutoff_hz: 2.0   # ... of tau_in_des (less gravity) before its rate
-        rest_gate_cutoff_hz: 5.0     # kp and b only in motion, faded at this cutoff (0 = always on)
-        deflection_link_lag_compensation: false  # + its lag x the link's acceleration (the link's, whatever the source)
-        band_gain: 2.5               # + band_gain x BP[e], BP band_low_hz 0.3 - band_high_hz 2.0 Hz (faded like kp)
-        output_torque_gain: 2.0      # + gain x LP[e_out] on the output torque reference (output load cells, faded
-        output_torque_cutoff_hz: 10.0  # like kp), LP at this cutoff
-        output_torque_peak_gain: 1.0   # x (1 + gain x BP) on it, BP a unit-gain band-pass peak at
-        output_torque_peak_hz: 1.5     # this frequency (the fast strokes' swing on the hand) with
-        output_torque_peak_q: 1.5      # this quality (0 gain = off)
-      filters:
-        tau_in_cutoff_hz: 150.0      # 1st-order low-pass on tau_in (load-cell noise); 0 = off
-        q_out_blend_hz: 2.0          # complementary filter of the gravity model's angle: IMU angle below,
-                                     # integrated gyro rate above this frequency (no lag); 0 = raw angle
-      gravity:
-        enabled: true
-        m_g_l_Nm: 3.78               # tau_g = m_g_l sin(q_out), models.link convention
-      feedforward:                   # reduced-model friction feedforward, eq (21)
-        enabled: true
-        placement: reference         # reference: tau_in_des = tau_g + tau_fc | motor: eq (28) as printed
-        gain: 1.0                    # fraction of the model friction compensated
-        mu: 0.052
-        routing: {length_m: 1.379, theta_rad: 3.0}   # any form of models.routing
-        pretension: measured         # measured (mean of the four load cells) | fixed
-        T0_fixed_N: 150.0            # used when pretension is fixed
-        eq25_reading: friction_preserving  # averaged pretension T0_eq of eq (25): friction_preserving
-                                     # (bending-weighted field mean, the distributed model's
-                                     # sliding friction) | field_minimum (2 T(s_min) as printed)
-        zeta_s: 1.2                  # static/sticky factor (>= zeta_c)
-        zeta_c: 1.0                  # Coulomb factor
-        eta_s_rad_s: 0.05            # Stribeck velocity
-        alpha_s_rad: 50.0            # tanh steepness [s/rad]
-        b_vis_Nms_rad: 0.0           # viscous term
-        dead_band_rad_s: 0.01        # rest gate: feedforward x 0 for |dq_out| <= 0.8 band, x 1 above the band
-                                     # (linear between), so its direction cannot follow gyro noise at rest
-                                     # (5 sigma of 2 mrad/s; >= 2 x stability.gyro_noise_rad_s)
-        max_rate_Nm_s: 200.0         # slew limit of the feedforward: a flip at a reversal over ~17 ms, not 1 cycle
-        effects: []                  # learned effects added to the friction torque: the fragment
-                                     # of `capstan close` (format models/closure/effects_runtime.py,
-                                     # evaluation controller/law/learned_effects.py)
-        effects_shape: {alpha_s_rad: 50.0, eta_s_rad_s: 0.05, zeta_s: 1.2, v_rest_rad_s: 0.005}
-                                     # s(dq) of the baseline the effects were fitted on and the
-                                     # rest threshold of their dwell signal; absent keys: the
-                                     # feedforward's own shape, v_rest 0.005 rad/s
-      safety:
-        tau_max_Nm: 15.0             # command clamp (saturation, not a fault)
-        dtau_max_Nm_s: 2000.0        # command rate clamp
-        command_quantum_Nm: 1.52587890625e-05   # the command's resolution, 2**-16 Nm (a power of
-                                     # two <= 2**-10, or 0 = as computed); the drive's is 1 per mille
-        tau_fault_Nm: 60.0           # raw demand beyond this latches TORQUE_LIMIT (keep above
-                                     # (1 + kp) * 2 * tau_fc: the feedforward flips sign at reversals)
-        dtau_fault_Nm_s: 60000.0     # raw demand step beyond this x dt latches TORQUE_RATE_LIMIT
-        imu_timeout_s: 0.010         # STALE_IMU when t_s - imu_t_s exceeds this
-        loadcell_timeout_s: 0.005
-        motor_timeout_s: 0.005
-      stability:                     # the loop check at start-up (controller/law/stability.py)
-        io_delay_cycles: 2           # command -> measured effect beyond the zero-order hold [cycles]
-        stiffness_range_Nm_rad: [200.0, 300.0]   # K_c range the gains must be robust over
-        inertia_tolerance: 0.3       # J_m +- 30 %
-        link_inertia_kg_m2: 0.17     # the link in slip (output free)
-        link_damping_Nms_rad: 0.02
-        link_stiffness_Nm_rad: 3.78  # gravity stiffness m g l at hanging
-        stick_stiffness_factor: 11.0 # input-side stiffness in sheath stick / K_c: only the cable up to
-                                     # where friction grips deforms (N + 1 for the N-node model; 46-49 Hz ring)
-        min_phase_margin_deg: 45.0
-        min_gain_margin_dB: 6.0
-        tension_noise_N: 0.3         # load-cell noise per channel (std) for the noise gains
-        gyro_noise_rad_s: 0.002      # gyro noise (std)
-        grip_stiffness_Nm_rad: [60.0, 300.0, 1000.0]   # a hand holding the link: slip points with this stiffness
-        grip_damping_Nms_rad: 3.0    # and damping on the link, at PM >= min_grip_phase_margin_deg 30 ([] = off)
+Sections ``plant``, ``ldo``, ``feedback`` (:mod:`capstan.controller.law.feedback_config`),
+``filters``, ``gravity``, ``feedforward``, ``safety`` (:mod:`capstan.controller.law.safety_config`)
+and ``stability`` (:mod:`capstan.controller.law.stability_settings`). The defaults are the
+dataclass fields below and in those modules, and nowhere else: every key with its unit, range,
+default and meaning is in docs/configuration.md, generated from the parsers by
+``capstan config reference``.
 
 All numbers are SI. :meth:`ControllerConfig.to_mapping` returns the same structure
 (with the routing as its curvature profile) so a log stores the exact config used.

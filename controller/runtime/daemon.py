@@ -106,6 +106,7 @@ class Daemon:
         self.summary = RunSummary()
         self._stop = False
         self._log_started_s = 0.0
+        self._looped = False          # the loop reached its first cycle (else the log is removed)
 
     def request_stop(self) -> None:
         """Ask the loop to ramp down and stop (async-signal safe: sets a flag)."""
@@ -129,6 +130,7 @@ class Daemon:
         if self.devices is None:
             self.devices = build_devices(self.cfg)
         self._log_started_s = time.time()
+        self._looped = False
         if self.sink is None:
             lg = self.cfg.logging
             self.sink = open_session(lg.dir, ctl.record.dtype, logged_config(self.cfg.raw, ctl), lg.ring_records,
@@ -203,6 +205,7 @@ class Daemon:
         prev_wake = sl.start() - sl.period_ns
         dl = sl.deadline_ns
         wake, late = sl.wait()
+        self._looped = True
         while True:
             t_s = wake * 1e-9
             ext = 0
@@ -405,6 +408,12 @@ class Daemon:
             out_dir = getattr(self.sink, "out_dir", None)
             if out_dir is not None:
                 path = newest_log(out_dir, since_s=self._log_started_s - 1.0)
+                if path is not None and not self._looped:
+                    # a start that failed before the first cycle: nothing to keep, and under
+                    # systemd one empty file per restart would pile up
+                    path.unlink(missing_ok=True)
+                    log.info("no cycle ran: removed the log %s", path)
+                    path = None
                 self.summary.log_path = None if path is None else str(path)
         self.summary.phase = self.phase.name
 

@@ -4,6 +4,7 @@ Every error raised on purpose by capstan code derives from :class:`CapstanError`
 
     CapstanError
      +-- ConfigError            a configuration key is missing or invalid (key + reason)
+     |    +-- ConfigFileError       a configuration file is missing, unreadable or not YAML
      +-- DataFormatError        a measurement table, import description or log is unreadable
      +-- ModelError             a model cannot be built or evaluated
      |    +-- OperatingRangeError   a scenario leaves the model's range (e.g. cable slack)
@@ -17,6 +18,7 @@ Every error raised on purpose by capstan code derives from :class:`CapstanError`
      |    +-- StateTransitionError  a DS402 transition did not complete in its timeout
      +-- ControlFaultError      the control loop latched a fault (carries the last N cycles)
      +-- RealtimeError          real-time scheduling was required but is not available
+     +-- UsageError             a command-line argument is invalid (the parser cannot tell)
 
 Library code raises these; only the command line turns them into exit codes.
 """
@@ -41,6 +43,20 @@ class ConfigError(CapstanError):
         self.key = key
         self.reason = reason
         super().__init__(f"config key '{key}': {reason}")
+
+
+class ConfigFileError(ConfigError):
+    """A configuration file cannot be used as a whole (missing, unreadable, not a YAML mapping,
+    not shipped).
+
+    :param path: the file as the user named it.
+    :param reason: human-readable reason.
+    """
+
+    def __init__(self, path: str, reason: str) -> None:
+        self.key = path
+        self.reason = reason
+        CapstanError.__init__(self, f"config file '{path}': {reason}")
 
 
 class DataFormatError(CapstanError):
@@ -104,3 +120,8 @@ class ControlFaultError(CapstanError):
 
 class RealtimeError(CapstanError):
     """Real-time scheduling (SCHED_FIFO, mlockall, affinity) was enforced but is unavailable."""
+
+
+class UsageError(CapstanError):
+    """A command-line argument is invalid in a way the argument parser cannot check
+    (``--duration-s 0``); the command line reports it like a config error, exit code 2."""

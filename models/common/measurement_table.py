@@ -1,5 +1,5 @@
 """The measurement table of the exchange format: a CSV with a header row plus a
-YAML sidecar of the same stem (see README, "Measurement table").
+YAML sidecar of the same stem (docs/measurement-table.md).
 
 Columns are SI: ``t`` [s] (monotonic), ``tau_in``/``tau_out`` [Nm], ``q_in``/``q_out``
 [rad], ``dq_out`` [rad/s], ``T_lc_in``/``T_lc_out`` [N]; any extra column is allowed

@@ -81,7 +81,7 @@ def finish_cyclictest(started: tuple[subprocess.Popen, list[str], int] | None,
 
 def run_hil(config: Path, duration_s: float) -> dict[str, Any]:
     """``capstan hil --json``; the parsed summary plus the exit code."""
-    cmd = [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(config), "--duration", str(duration_s),
+    cmd = [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(config), "--duration-s", str(duration_s),
            "--json"]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=duration_s + 300)
     try:
@@ -89,7 +89,7 @@ def run_hil(config: Path, duration_s: float) -> dict[str, Any]:
     except (IndexError, json.JSONDecodeError):
         raise SystemExit(f"capstan hil failed (exit {res.returncode}):\n{res.stderr[-3000:]}")
     out["exit_code"] = res.returncode
-    out["command"] = "capstan hil --config " + str(config) + f" --duration {duration_s:g} --json"
+    out["command"] = "capstan hil --config " + str(config) + f" --duration-s {duration_s:g} --json"
     return out
 
 

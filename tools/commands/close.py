@@ -31,7 +31,8 @@ HELP = "close the model loop: residual -> missing effect -> before/after report"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``capstan close``."""
     parser.add_argument("train", nargs="+", help="training runs (.csv tables, .mcap logs, or --import layouts)")
-    parser.add_argument("--test", nargs="*", default=[], help="held-out runs (none: split a single run 70/30)")
+    parser.add_argument("--test", action="append", default=[], metavar="RUN",
+                        help="a held-out run; repeat for several (none: split a single run 70/30)")
     parser.add_argument("--report", required=True, help="report directory (Markdown + PNG + JSON + fragment)")
     parser.add_argument("--model", choices=("reduced", "wu"), default="reduced", help="baseline model")
     parser.add_argument("--baseline", choices=("dynamic", "static"), default="dynamic",
@@ -41,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--train-fraction", type=float, default=0.7,
                         help="single-run split: contiguous training head fraction (default 0.7)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
+                        help="show a progress bar (default: yes)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         src = train_t[0].source
         train_names = [f"{src} [t {sig.t_s[0]:.3f}-{sig.t_s[k - 1]:.3f} s]"]
         test_names = [f"{src} [t {sig.t_s[k]:.3f}-{sig.t_s[-1]:.3f} s]"]
-    bar = Progress("close", enabled=not args.no_progress)
+    bar = Progress("close", enabled=args.progress)
     res = close(train, test, ModelKind.parse(args.model), progress=lambda d, t, _l: bar.update(d, t),
                 dynamic=args.baseline == "dynamic")
     bar.done()

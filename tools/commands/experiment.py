@@ -4,17 +4,19 @@ rig, and ``paper`` (reproduce the paper's figures; implemented in :mod:`capstan.
     capstan experiment interaction [--json] [--quick] [--duration-s S] [--seed N] [--delay-cycles D | --lock-step]
                                    [--terms]      # the shipped loop with one term off at a time
     capstan experiment loop [--config FILE] [--log HIL.mcap] [--json]   # margins with the I/O delay
-    capstan experiment paper [...]            # options of tools.paper_experiment
+    capstan experiment paper [...]            # options of capstan.tools.experiments.paper
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import importlib.util
 import json
 import logging
 import sys
+from pathlib import Path
 
 HELP = "experiments: interaction (Fig. 13 on the simulated rig), paper (reproduce the paper)"
 
@@ -40,12 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp = sub.add_parser("loop", help="torque-loop margins and noise gains with the I/O delay")
     from capstan.tools.experiments.loop import add_arguments as _loop_args
     _loop_args(lp)
-    q = sub.add_parser("paper", help="reproduce the paper's figures (tools.paper_experiment)")
+    q = sub.add_parser("paper", help="reproduce the paper's figures (capstan.tools.experiments.paper)")
     # the paper experiment declares its own options; imported only when this command runs
     if importlib.util.find_spec("capstan.tools.experiments.paper.experiment") is not None:
         module = importlib.import_module("capstan.tools.experiments.paper.experiment")
         if hasattr(module, "add_arguments"):
             module.add_arguments(q)
+            q.add_argument("--json", action="store_true", help="print the summary as one JSON object")
             return
     q.add_argument("paper_args", nargs=argparse.REMAINDER, help="arguments passed to the paper experiment")
 
@@ -127,13 +130,22 @@ def _print_table(out: dict) -> None:
 
 
 def _run_paper(args: argparse.Namespace) -> int:
-    """Delegate to ``tools.paper_experiment.run(args)``.
+    """Delegate to ``capstan.tools.experiments.paper.experiment.run(args)`` (with ``--json``: its
+    ``run_paper`` and one JSON object of the summary).
 
     :raises ConfigError: if the paper experiment module is not installed.
     """
     if importlib.util.find_spec("capstan.tools.experiments.paper.experiment") is None:
         from capstan.models.common.errors import ConfigError
 
-        raise ConfigError("experiment", "the 'paper' experiment (tools.paper_experiment) is not available")
+        raise ConfigError("experiment", "the 'paper' experiment (capstan.tools.experiments.paper) is not available")
     module = importlib.import_module("capstan.tools.experiments.paper.experiment")
-    return int(module.run(args) or 0)
+    if not getattr(args, "json", False):
+        return int(module.run(args) or 0)
+    settings = module.Settings.quick_settings() if args.quick else module.Settings()
+    doc = module.run_paper(Path(args.out), dataclasses.replace(settings, seed=args.seed), module.parse_only(args.only))
+    print(json.dumps({"report": str(Path(args.out) / "report.md"), "total_wall_s": doc["total_wall_s"],
+                      "figures": {k: {"wall_s": r["wall_s"], "rows": len(r["rows"]), "figures": list(r["figures"])}
+                                  for k, r in doc["figures"].items()},
+                      "failed": dict(doc["failed"])}))
+    return 1 if doc["failed"] else 0

@@ -8,6 +8,7 @@ written as an extra column under its own name (units in the sidecar).
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 from pathlib import Path
 
@@ -23,6 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", nargs="+", help="capstan MCAP log (several = one rotated run, in order)")
     parser.add_argument("--out", required=True, help="output CSV (sidecar written next to it)")
     parser.add_argument("--precision", type=int, default=12, help="significant digits (default 12)")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,5 +46,9 @@ def run(args: argparse.Namespace) -> int:
     if data.truncated:
         table.meta["truncated"] = True
     out = write_table(table, args.out, precision=args.precision)
-    print(f"{out}: {len(table)} rows, {len(table.columns)} columns (sidecar {out.with_suffix('.yaml')})")
+    if args.json:
+        print(json.dumps({"out": str(out), "sidecar": str(out.with_suffix(".yaml")), "rows": len(table),
+                          "columns": list(table.columns), "truncated": bool(data.truncated)}))
+    else:
+        print(f"{out}: {len(table)} rows, {len(table.columns)} columns (sidecar {out.with_suffix('.yaml')})")
     return 0

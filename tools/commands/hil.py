@@ -1,4 +1,4 @@
-"""``capstan hil [--config config/hil.yaml] --duration S [--json]``: hardware-in-the-loop run.
+"""``capstan hil [--config config/hil.yaml] --duration-s S [--json]``: hardware-in-the-loop run.
 
 Starts the simulated rig in its own process (:mod:`capstan.tools.hil.plant`: plant in real
 time, simulated drive on a fresh ``capstan_unix`` bus, IMU and load cells on pty
@@ -34,7 +34,7 @@ from capstan.controller.law.records import FaultBits
 from capstan.tools.commands.run import EXIT_DEVICE_LOST, EXIT_FAULT
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.models.common.config_tools import load_yaml
-from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError, DriverError
+from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError, DriverError, UsageError
 from capstan.tools.offline.shipped import config_path
 
 HELP = "hardware-in-the-loop: simulated rig in its own process + the daemon unchanged"
@@ -49,7 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``capstan hil``."""
     parser.add_argument("--config", default=None,
                         help="HIL config YAML (default: the shipped hil.yaml, logs under ./runs/hil)")
-    parser.add_argument("--duration", type=float, required=True, metavar="S", help="seconds of control")
+    duration = parser.add_mutually_exclusive_group(required=True)
+    duration.add_argument("--duration-s", type=float, metavar="S", help="seconds of control")
+    duration.add_argument("--duration", dest="duration_s", type=float, help=argparse.SUPPRESS)   # deprecated spelling
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
@@ -108,9 +110,8 @@ def run(args: argparse.Namespace) -> int:
 
     :raises CapstanError: on configuration or start-up errors (exit code 2).
     """
-    if not args.duration > 0:
-        log.error("--duration must be > 0, got %s", args.duration)
-        return 2
+    if not args.duration_s > 0:
+        raise UsageError(f"--duration-s must be > 0, got {args.duration_s}")
     path = config_path("hil.yaml") if args.config is None else Path(args.config)
     # relative log dirs: beside the config folder of a checkout, the working directory for
     # the shipped config (never inside the installed package)
@@ -128,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = DaemonConfig.from_mapping(with_devices(raw, ports), base_dir=base_dir, source=path)
         daemon = Daemon(cfg)
         try:
-            daemon.run(duration_s=args.duration)
+            daemon.run(duration_s=args.duration_s)
         except ControlFaultError as exc:
             log.error("stopped on a fault: %s", exc.reason)
             code = EXIT_DEVICE_LOST if exc.bits & FaultBits.DEVICE_LOST else EXIT_FAULT

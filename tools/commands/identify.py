@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``capstan identify``."""
     parser.add_argument("runs", nargs="+", help="measurement tables (.csv), daemon logs (.mcap) or files "
                                                 "read through --import")
-    parser.add_argument("--model", choices=("reduced", "distributed", "wu"), default="reduced")
+    parser.add_argument("--model", choices=("reduced", "distributed", "wu"), default="reduced",
+                        help="model to fit (default: reduced)")
     parser.add_argument("--import", dest="import_desc", help="import description YAML for other layouts")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 

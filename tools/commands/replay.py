@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", nargs="+", help="capstan MCAP log (several = one rotated run, in order)")
     parser.add_argument("--config", help="override YAML merged over the logged config (what-if)")
     parser.add_argument("--out", help="what-if log path (default: LOG_whatif.mcap next to the log)")
-    parser.add_argument("--no-plot", action="store_true", help="do not write the what-if plot")
+    parser.add_argument("--plot", action=argparse.BooleanOptionalAction, default=True,
+                        help="write the what-if plot (default: yes)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         mlog.write_records(res.replayed)
         mlog.close()
         report["whatif_log"] = str(out)
-        if not args.no_plot:
+        if args.plot:
             report["plot"] = str(_plot(data.records, res.replayed, out.with_suffix(".png"),
                                        f"what-if ({Path(args.config).name}), open loop on logged measurements"))
     if args.json:

@@ -18,9 +18,10 @@ log = logging.getLogger("capstan.simulate")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``capstan simulate``."""
-    parser.add_argument("scenario", help="scenario YAML (see README, 'Scenario files')")
+    parser.add_argument("scenario", help="scenario YAML (docs/simulation.md)")
     parser.add_argument("--out", required=True, help="measurement table CSV to write (sidecar .yaml beside it)")
-    parser.add_argument("--plot", action="store_true", help="write tau_in-tau_out and tau_in-deflection loops as PNG")
+    parser.add_argument("--plot", action=argparse.BooleanOptionalAction, default=False,
+                        help="write tau_in-tau_out and tau_in-deflection loops as PNG (default: no)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 

@@ -1,6 +1,6 @@
 """End-to-end model closure on the daemon in hardware-in-the-loop mode.
 
-``python -m capstan.tools.experiments.e2e_closure --out DIR [--config config/hil_effect.yaml] [--duration 90]
+``python -m capstan.tools.experiments.e2e_closure --out DIR [--config config/hil_effect.yaml] [--duration-s 90]
 [--retries 1] [--baseline dynamic|static] [--doc docs/e2e-closure.md]``
 
 The real commands, in separate processes, as an operator would run them:
@@ -23,7 +23,7 @@ The real commands, in separate processes, as an operator would run them:
 4. run B: ``capstan hil`` with the same plant and the merged config;
 5. run C (control): ``capstan hil`` without the effect in the plant, original config.
 
-All three runs last ``--duration`` seconds of control with the same hand motion. For
+All three runs last ``--duration-s`` seconds of control with the same hand motion. For
 each run: the hand's interaction torque (plant statistics, :mod:`capstan.tools.hil.hand`),
 the breakaway/sliding friction ratio measured from the daemon's log
 (:mod:`capstan.tools.experiments.breakaway`), loop figures and faults. A run that stops on a fault (e.g. a
@@ -118,7 +118,7 @@ def run_hil(name: str, cfg: Mapping[str, Any], duration_s: float, out: Path, ret
         c.setdefault("logging", {})["dir"] = str(out / "logs" / f"{name}{k}")
         path = out / f"config_{name}.yaml"
         path.write_text(yaml.safe_dump(c, sort_keys=False))
-        cmd = [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(path), "--duration", str(duration_s), "--json"]
+        cmd = [sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(path), "--duration-s", str(duration_s), "--json"]
         _log(f"run {name} (attempt {k + 1}): {' '.join(cmd[1:])}")
         p = subprocess.run(cmd, capture_output=True, text=True)
         lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
@@ -311,7 +311,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m capstan.tools.experiments.e2e_closure", description=__doc__.split("\n")[0])
     ap.add_argument("--out", required=True, help="output directory")
     ap.add_argument("--config", default=str(config_path("hil_effect.yaml")), help="HIL config with the effect")
-    ap.add_argument("--duration", type=float, default=90.0, help="seconds of control of each run")
+    ap.add_argument("--duration-s", type=float, default=90.0, help="seconds of control of each run")
+    ap.add_argument("--duration", dest="duration_s", type=float, help=argparse.SUPPRESS)   # deprecated spelling
     ap.add_argument("--retries", type=int, default=1, help="repeats of a run that stopped on a fault")
     ap.add_argument("--baseline", choices=("dynamic", "static"), default="dynamic",
                     help="baseline of capstan close (dynamic: the reduced model simulated, LINK form on a daemon log)")
@@ -331,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     load0 = os.getloadavg()
     runs: dict[str, dict[str, Any]] = {}
-    runs["A"] = run_hil("A", cfg, args.duration, out, args.retries)
+    runs["A"] = run_hil("A", cfg, args.duration_s, out, args.retries)
     if not runs["A"].get("log_path"):
         _log("run A produced no log")
         return 1
@@ -342,15 +343,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     frag = load_yaml(out / "close" / "effects.yaml")
     merged = merge_fragment(cfg, frag, empirical=args.with_empirical)
-    runs["B"] = run_hil("B", merged, args.duration, out, args.retries)
+    runs["B"] = run_hil("B", merged, args.duration_s, out, args.retries)
     left_out = [e["effect"] for e in frag.get("controller", {}).get("feedforward", {}).get("effects", [])
                 if not args.with_empirical and is_empirical(e)]
-    runs["C"] = run_hil("C", without_effects(cfg), args.duration, out, args.retries)
+    runs["C"] = run_hil("C", without_effects(cfg), args.duration_s, out, args.retries)
     for r in runs.values():
         r["breakaway"] = breakaway_figures(r["log_path"]) if r.get("log_path") else {}
     shown = os.path.relpath(args.config) if Path(args.config).resolve().is_relative_to(Path.cwd()) else args.config
     cmd = " ".join(["python -m capstan.tools.experiments.e2e_closure", "--out", args.out, "--config", shown,
-                    "--duration", f"{args.duration:g}"] + (["--baseline", "static"] if args.baseline == "static" else []) + (["--with-empirical"] if args.with_empirical else [])
+                    "--duration-s", f"{args.duration_s:g}"] + (["--baseline", "static"] if args.baseline == "static" else []) + (["--with-empirical"] if args.with_empirical else [])
                    + (["--doc", args.doc] if args.doc else []))
     summary = {
         "command": cmd, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),

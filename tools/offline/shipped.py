@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from capstan.models.common.errors import ConfigError
+from capstan.models.common.errors import ConfigError, ConfigFileError
 
 PACKAGE = "capstan.config"
 
@@ -40,9 +40,9 @@ def shipped_names() -> list[str]:
 def config_path(name: str) -> Path:
     """Path of the shipped file ``name`` (e.g. ``"hil.yaml"``, ``"scenarios/testbed_multisine.yaml"``).
 
-    :raises ConfigError: if no such file is shipped (the message lists those that are).
+    :raises ConfigFileError: if no such file is shipped (the message lists those that are).
     """
     path = config_dir() / name
     if not path.is_file():
-        raise ConfigError(PACKAGE, f"no shipped file {name!r}; shipped: {', '.join(shipped_names())}")
+        raise ConfigFileError(name, f"not a shipped file; shipped: {', '.join(shipped_names())}")
     return path
