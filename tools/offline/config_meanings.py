@@ -156,6 +156,9 @@ MEANINGS: dict[str, str] = {
     "motor.mode": "`cst` (cyclic synchronous torque, mode 10) or `profile_torque` (mode 4)",
     "motor.encoder_counts_per_rev": "increments of 0x6064 per motor revolution",
     "motor.velocity_units_per_rev_s": "units of 0x606C per motor rev/s (counts/s: the encoder counts; rpm: 60)",
+    "motor.units": "`check`: the units the drive reports (0x608F/0x6091/0x6092/0x60A8/0x60A9/0x6076) are checked "
+                   "against the keys above and a mismatch refused; `write`: the config's units are written "
+                   "to 0x60A8/0x60A9 first (docs/drive-bring-up.md)",
     "motor.gear_ratio": "motor revolutions per revolution of the reported shaft",
     "motor.rated_torque_Nm": "rated torque, the unit of 0x6071/0x6077 being 1/1000 of it (absent: read 0x6076)",
     "motor.max_torque_Nm": "commanded torque clamp; also written to 0x6072",
@@ -262,6 +265,10 @@ MEANINGS: dict[str, str] = {
     "hil.hand.settle_s": "time after grabbing the handle left out of the statistics",
     "hil.hand.breakaway_window_s": "window after each stroke onset for the breakaway peak",
     "hil.plant": "the distributed plant (models/plant/; the scenario file's plant keys)",
+    "hil.plant.sensors": "the simulated devices: `realistic` (default: the drive's 0x606C from 1 ms count "
+                         "differences in its unit, load-cell scale/zero errors with drift, gyro bias and axis "
+                         "tilt, a jittered lossy command path) or `ideal` (exact signals), or a mapping "
+                         "(models/plant/sensors.py; sensor mistakes for bring-up tests under `mistakes`)",
     "hil.plant.seed": "sensor-noise seed",
     "hil.plant.imu_rate_hz": "the simulated IMU's sample rate",
     "hil.plant.effects": "physical effects the controller's model lacks (models/plant/rig_effects.py)",
