@@ -19,6 +19,9 @@ Started by ``capstan hil`` (``python -m capstan.tools.hil.plant --config hil.yam
 Protocol with the parent on stdout: one JSON line once ready
 ``{"channel", "imu_port", "load_cells_port", "pid"}``; one JSON line of statistics at the
 end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects).
+SIGUSR1 clamps the link where it is (a stiff spring-damper :data:`CLAMP_STIFFNESS_NM_RAD`,
+:data:`CLAMP_DAMPING_NMS_RAD` about the angle at that moment, as a person holding it against
+a stop: the held identification run of ``capstan rig bringup``); SIGUSR2 releases it.
 It stops on SIGTERM, :data:`ORPHAN_GRACE_S` after its parent dies (a real rig outlives a
 killed daemon: the drive's own heartbeat watch must get to act first), or on a plant error
 (cable slack, integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
@@ -57,6 +60,10 @@ EXIT_PLANT_ERROR = 4
 #: consumer heartbeat time a config may set (motor.consumer_timeout_s ≤ 1 s), so the drive's
 #: own watch acts first, as on a rig
 ORPHAN_GRACE_S = 1.5
+#: the clamp of SIGUSR1: stiffness [Nm/rad] and damping [Nm s/rad] about the clamped angle
+#: (about 17 Hz with the reference link, far above the link's own 0.8 Hz)
+CLAMP_STIFFNESS_NM_RAD = 2000.0
+CLAMP_DAMPING_NMS_RAD = 10.0
 
 
 @dataclass(frozen=True)
@@ -163,6 +170,23 @@ class HilPlant:
         self.lost_s = 0.0
         self.step_us = np.zeros(1 << 16)
         self.stop = False
+        #: clamp requested (SIGUSR1 / SIGUSR2) and the angle it holds (None: free) [rad]
+        self.clamp_request = False
+        self.clamp_q_rad: float | None = None
+
+    def clamp_torque_Nm(self) -> float:
+        """Torque of the clamp on the link (0 while free) [Nm]."""
+        m = self.rig.model
+        if self.clamp_request and self.clamp_q_rad is None:
+            self.clamp_q_rad = float(m.q_out_rad)
+            log.info("link clamped at %.4f rad", self.clamp_q_rad)
+        elif not self.clamp_request and self.clamp_q_rad is not None:
+            self.clamp_q_rad = None
+            log.info("link released")
+        if self.clamp_q_rad is None:
+            return 0.0
+        return -CLAMP_STIFFNESS_NM_RAD * (float(m.q_out_rad) - self.clamp_q_rad) \
+            - CLAMP_DAMPING_NMS_RAD * float(m.dq_out_rad_s)
 
     def ports(self) -> dict[str, Any]:
         """The handshake line: where the daemon finds the devices."""
@@ -194,7 +218,7 @@ class HilPlant:
         """
         tau_m = self.drive.torque_command_Nm
         t = self.rig.t_s
-        self.rig.step(tau_m, self.tau_ext_Nm(t) + self.hand_torque_Nm(t, dt_s), dt_s)
+        self.rig.step(tau_m, self.tau_ext_Nm(t) + self.hand_torque_Nm(t, dt_s) + self.clamp_torque_Nm(), dt_s)
         q, dq, tau = self.rig.motor_feedback()
         self.drive.set_feedback(q * self._gear, dq * self._gear, tau)
         self.drive.service(now_s)
@@ -281,6 +305,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant.stop = True
 
     signal.signal(signal.SIGTERM, _on_term)
+
+    def _on_clamp(signum: int, frame: Any) -> None:
+        plant.clamp_request = signum == signal.SIGUSR1
+
+    signal.signal(signal.SIGUSR1, _on_clamp)
+    signal.signal(signal.SIGUSR2, _on_clamp)
     code = 0
     try:
         plant.rig.step(0.0, 0.0, plant.settings.period_s)   # compile the plant before READY

@@ -147,11 +147,11 @@ class RigStart:
         return RigStart(devices, drawing, calib, limits, log_dir, source)
 
     def with_ports(self, ports: Mapping[str, Any]) -> "RigStart":
-        """A copy with ``auto`` channel/ports replaced by a served rig's endpoints."""
+        """A copy on a served simulated rig: the drive on its ``capstan_unix`` bus, the IMU and
+        the load cells on its ptys (``ports`` of its endpoint line; ``auto`` for a config
+        that ``capstan hil`` fills in)."""
         dev = {k: dict(v) for k, v in self.devices.items()}
-        if dev["motor"].get("channel") == "auto":
-            dev["motor"]["channel"] = ports["channel"]
-        for role, key in (("imu", "imu_port"), ("load_cells", "load_cells_port")):
-            if dev[role].get("port") == "auto":
-                dev[role]["port"] = ports[key]
+        dev["motor"].update(interface="capstan_unix", channel=ports["channel"])
+        dev["imu"]["port"] = ports["imu_port"]
+        dev["load_cells"]["port"] = ports["load_cells_port"]
         return RigStart(dev, self.drawing, self.calibration, self.limits, self.log_dir, self.source)
