@@ -79,6 +79,8 @@ class HilSettings:
     :ivar hand: the hand moving the link (None: no hand).
     :ivar imu_boot_baudrate: line rate the simulated MTi boots at (``hil.imu.boot_baudrate``,
         default 115200 like a new unit, so the daemon's start-up searches the rate) [Bd].
+    :ivar load_cells_silent_after_s: device fault (``hil.faults``): the load-cell amplifier
+        stops sending this long after the drive is first enabled (0 = never) [s].
     """
 
     period_s: float = 1e-3
@@ -90,12 +92,15 @@ class HilSettings:
                                                   helper_priority=69)
     hand: HandSettings | None = None
     imu_boot_baudrate: int = 115200
+    load_cells_silent_after_s: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], prefix: str = "hil") -> "HilSettings":
         """:raises ConfigError: naming the offending key."""
-        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand", "imu"},
-                       prefix)
+        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand", "imu",
+                             "faults"}, prefix)
+        faults = section(cfg, "faults", prefix, required=False)
+        reject_unknown(faults, {"load_cells_silent_after_s"}, f"{prefix}.faults")
         imu = section(cfg, "imu", prefix, required=False)
         reject_unknown(imu, {"boot_baudrate"}, f"{prefix}.imu")
         boot_bd = get_int(imu, "boot_baudrate", f"{prefix}.imu", 115200)
@@ -126,6 +131,7 @@ class HilSettings:
                              helper_priority=prio - 1),
             HandSettings.from_mapping(section(cfg, "hand", prefix), f"{prefix}.hand") if "hand" in cfg else None,
             boot_bd,
+            get_float(faults, "load_cells_silent_after_s", f"{prefix}.faults", 0.0, min_value=0.0),
         )
 
 
@@ -173,6 +179,7 @@ class HilPlant:
         #: clamp requested (SIGUSR1 / SIGUSR2) and the angle it holds (None: free) [rad]
         self.clamp_request = False
         self.clamp_q_rad: float | None = None
+        self._enabled_at_s: float | None = None
 
     def clamp_torque_Nm(self) -> float:
         """Torque of the clamp on the link (0 while free) [Nm]."""
@@ -227,7 +234,19 @@ class HilPlant:
         new, q_out, dq_out = self.rig.imu_sample()
         if new:
             self.imu.emit(self.rig.t_s, q_out, dq_out)
-        self.cells.emit(self.rig.load_cells_N())
+        if not self._load_cells_silent():
+            self.cells.emit(self.rig.load_cells_N())
+
+    def _load_cells_silent(self) -> bool:
+        """True once the ``hil.faults`` load-cell loss is due."""
+        after = self.settings.load_cells_silent_after_s
+        if after <= 0.0:
+            return False
+        if self._enabled_at_s is None:
+            if self.drive.state == State402.OPERATION_ENABLED:
+                self._enabled_at_s = self.rig.t_s
+            return False
+        return self.rig.t_s - self._enabled_at_s >= after
 
     def run(self, parent_pid: int = 0) -> dict[str, Any]:
         """Pace :meth:`cycle` in real time until :attr:`stop`, or the parent is gone.

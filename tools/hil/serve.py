@@ -3,7 +3,9 @@
 A plant file (``PLANT.yaml``) holds the ``hil.plant`` mapping of
 :meth:`capstan.models.plant.rig.SimulatedRig.from_mapping` (transmission, routing,
 pretension, output, input, noise, seed, effects and the devices' ``sensors`` section) at
-its top level. :func:`served_config` wraps it into the configuration the rig process
+its top level, and optionally ``faults`` — device faults of the served rig
+(``hil.faults`` of :class:`capstan.tools.hil.plant.HilSettings`, e.g.
+``load_cells_silent_after_s``). :func:`served_config` wraps it into the configuration the rig process
 (:mod:`capstan.tools.hil.plant`) reads: the ``hil`` section around the plant and the device
 sections that say what the simulated hardware *is* (a CiA 402 drive at node 1 with the
 shipped EDS, an MTi, a four-channel amplifier) — never what a client was told about it.
@@ -64,7 +66,10 @@ def served_config(plant: Mapping[str, Any], hil: Mapping[str, Any] | None = None
         :data:`SERVED_HIL`.
     """
     h = {k: v for k, v in (SERVED_HIL if hil is None else hil).items() if k != "plant"}
-    return {**{k: dict(v) for k, v in SERVED_DEVICES.items()}, "hil": {**h, "plant": dict(plant)}}
+    p = {k: v for k, v in plant.items() if k != "faults"}
+    if "faults" in plant:
+        h["faults"] = plant["faults"]
+    return {**{k: dict(v) for k, v in SERVED_DEVICES.items()}, "hil": {**h, "plant": p}}
 
 
 def with_plant(cfg: Mapping[str, Any], plant: Mapping[str, Any]) -> dict[str, Any]:

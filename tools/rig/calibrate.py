@@ -94,20 +94,24 @@ def calibrate(data: StepData, windows: list[tuple[str, float, float]], start: Ri
     gain[0] = gain[3] = pair_gain
     ev["input_pair_gain"] = pair_gain
     ev["input_channel_gain"] = [g_up_in, g_lo_in]
-    if abs(pair_gain - 1.0) > tol:
+    # one input channel off: the pair's gain is about the mean of the two channels' gains,
+    # so with the other channel right (gain 1) the wrong one's is 2 p - 1
+    dev = [abs(g_up_in / pair_gain - 1.0), abs(g_lo_in / pair_gain - 1.0)]
+    if max(dev) > INPUT_CHANNEL_TOLERANCE:
+        k, g_k = (0, g_up_in) if dev[0] >= dev[1] else (3, g_lo_in)
+        gain[0] = gain[3] = 1.0
+        gain[k] = 2.0 * pair_gain - 1.0
+        findings.append(Finding("load_cells.scale_N_per_mV_V",
+                                f"{CHANNELS[k]} reads {gain[k]:.3f} x its true tension (channel {g_k:.3f} x, pair "
+                                f"{pair_gain:.3f} x against the drive's torque): this channel's sensitivity is wrong"))
+    if abs(pair_gain - 1.0) > tol and max(dev) <= INPUT_CHANNEL_TOLERANCE:
         findings.append(Finding("load_cells.scale_N_per_mV_V",
                                 f"the input load cells read {pair_gain:.3f} x the drive's torque "
                                 f"(r_in (T_up_in - T_lo_in) against 0x6077 over {int(m.sum())} still samples): "
                                 f"scale off by {100 * (pair_gain - 1):+.1f} %"))
-    for k, g in ((0, g_up_in), (3, g_lo_in)):
-        if abs(g / pair_gain - 1.0) > INPUT_CHANNEL_TOLERANCE:
-            gain[k] = g
-            findings.append(Finding("load_cells.scale_N_per_mV_V",
-                                    f"{CHANNELS[k]} reads {g:.3f} x its true tension against the drive's torque "
-                                    f"(its pair reads {pair_gain:.3f} x): this channel's sensitivity is wrong"))
     # output channels: each against its cable's input channel, at the same still samples
-    ratio_up = _slope(T["T_up_in_N"][m], T["T_up_out_N"][m])
-    ratio_lo = _slope(T["T_lo_in_N"][m], T["T_lo_out_N"][m])
+    ratio_up = _slope(T["T_up_in_N"][m] / gain[0], T["T_up_out_N"][m])
+    ratio_lo = _slope(T["T_lo_in_N"][m] / gain[3], T["T_lo_out_N"][m])
     ev["output_over_input"] = [ratio_up, ratio_lo]
     rel = ratio_up / ratio_lo if ratio_lo != 0 else float("nan")
     ev["output_pair_ratio"] = rel

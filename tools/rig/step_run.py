@@ -84,6 +84,8 @@ class ProfileController:
         self.reason = ""
         self.finished = False
         self.stop_request: Any = None
+        #: called with the reason when a move stops (the daemon's log gets it as an event)
+        self.on_stop: Any = None
         self._t0 = math.nan
         self._q_m0 = math.nan
 
@@ -133,6 +135,8 @@ class ProfileController:
             self.reason = reason
             r["fault_bits"] = int(FaultBits.EXTERNAL_STOP)
             log.error("bring-up move stopped at t=%.3f s: %s", t, reason)
+            if self.on_stop is not None:
+                self.on_stop(t_abs, reason)
             return 0.0
         tau = max(-self.limits.tau_max_Nm, min(self.limits.tau_max_Nm, tau))
         r["tau_in_des_Nm"] = r["tau_m_raw_Nm"] = r["tau_m_cmd_Nm"] = tau
@@ -153,7 +157,7 @@ def daemon_mapping(start: RigStart, name: str) -> dict[str, Any]:
     return {
         "controller": {"dt_s": 0.001, "safety": {"tau_max_Nm": L.tau_max_Nm}},
         **{role: dict(sec) for role, sec in start.devices.items()},
-        "logging": {"dir": str(start.log_dir / name), "ring_records": 8192, "fault_history_cycles": 500},
+        "logging": {"dir": str(start.log_dir / name.replace(" ", "_")), "ring_records": 8192, "fault_history_cycles": 500},
         "realtime": {"mode": "warn", "priority": 80, "lock_memory": False},
         "loop": {"period_s": 0.001, "busy_tail_s": 0.00015, "overrun_streak_fault": 50,
                  "sensor_fresh_s": 0.05, "startup_timeout_s": 5.0, "ramp_down_s": 0.1,
@@ -182,6 +186,12 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
     ctl = ProfileController(profile, start.limits, start.drawing.r_in_m, int(max_duration_s * 1000) + 2000)
     daemon = Daemon(cfg, controller=ctl)
     ctl.stop_request = daemon.request_stop
+
+    def _logged(t_s: float, reason: str) -> None:
+        if daemon.sink is not None:
+            daemon.sink.fault(t_s, f"bring-up {step} stopped: {reason}", code=int(FaultBits.EXTERNAL_STOP),
+                              n_cycles=1)
+    ctl.on_stop = _logged
     try:
         daemon.run(duration_s=max_duration_s)
     except ControlFaultError as exc:

@@ -70,7 +70,7 @@ def run_check(start: RigStart, report: BringupReport) -> tuple[StepData, CheckMo
     """
     move = CheckMove(tau_limit_Nm=CHECK_TORQUE_SHARE * start.limits.tau_max_Nm,
                      rest_s=start.calibration.rest_s)
-    data = run_profile(start, "check", "check", move, move.max_duration_s)
+    data = run_profile(start, "check", "check move", move, move.max_duration_s)
     report.logs.append(str(data.log_path))
     sign = float(start.devices["imu"].get("sign", 1.0))
     return data, move, analyse_check(data, move.windows, start.drawing.r_in_m, start.drawing.r_out_m, sign)
