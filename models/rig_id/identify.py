@@ -1,0 +1,131 @@
+"""Identify a rig's plant from its two identification runs (link held, link free): what the
+controller needs, each value with its uncertainty and how it was found.
+
+Where both runs determine a parameter (K_c, J_m, b_m: the free run's sweeps also deflect the
+cables and accelerate the motor), the two estimates are combined by their inverse variances and
+half their difference is added in quadrature as a systematic term: two runs of different
+motion that disagree by more than their statistics say show a model error the sandwich
+covariance of one run cannot see.
+
+Friction: the reduced model (paper eq 21) on the free run's transmission loss
+(:mod:`capstan.models.rig_id.friction`); its magnitude scales with the measured pretension and
+the bending the drawings give (:class:`RigGeometry`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from capstan.models.common.errors import ConfigError, ModelError
+from capstan.models.rig_id.fits import Estimate, LinkFit, MotorFit, fit_link, fit_motor, fit_stiffness
+from capstan.models.rig_id.friction import fit_friction
+from capstan.models.rig_id.runs import RigRun
+
+
+@dataclass(frozen=True)
+class RigGeometry:
+    """What the drawings give (SI): pulley radii and the sheath's total bending.
+
+    :raises ConfigError: on a non-positive value.
+    """
+
+    r_in_m: float = 0.04
+    r_out_m: float = 0.04
+    theta_rad: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("r_in_m", "r_out_m", "theta_rad"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ConfigError(f"geometry.{name}", f"must be a finite number > 0, got {v!r}")
+
+
+#: relative uncertainty floor of the combined K_c and J_m: what two runs that agree still leave unresolved
+#: (on the simulated rig the fits' largest bias against its truth is -0.3 % in J_m, over every variant and
+#: seed of docs/results/rig-identification.md; a rig's own unmodelled effects add to it)
+REL_FLOOR = 0.005
+
+
+def combine(a: Estimate, b: Estimate, method: str) -> Estimate:
+    """Inverse-variance mean of two estimates of one quantity, half their difference added in
+    quadrature to its standard error (a systematic term when the runs disagree), and at least
+    :data:`REL_FLOOR` of the value."""
+    wa, wb = 1.0 / max(a.stderr, 1e-300) ** 2, 1.0 / max(b.stderr, 1e-300) ** 2
+    v = (wa * a.value + wb * b.value) / (wa + wb)
+    se = max(math.hypot(1.0 / math.sqrt(wa + wb), 0.5 * (a.value - b.value)), REL_FLOOR * abs(v))
+    return Estimate(v, se, a.unit, f"{method}: held {a.value:.4g} +- {a.stderr:.2g}, free {b.value:.4g} +- {b.stderr:.2g}")
+
+
+@dataclass
+class RigIdentification:
+    """The identified plant (every value an :class:`Estimate`, SI).
+
+    :ivar friction: reduced-model friction (``tau_fc``, ``zeta_s``, ``eta_s_rad_s``, ``alpha_s_rad``,
+        ``b_vis``, ``mu_theta``, ``mu``, ``T0`` and the transmission ratio ``ratio``).
+    :ivar io_delay_cycles: the command's delay that fits the motor best [cycles].
+    """
+
+    K_c: Estimate
+    J_m: Estimate
+    b_m: Estimate
+    m_g_l: Estimate
+    J_l: Estimate
+    b_l: Estimate
+    friction: dict[str, Estimate]
+    io_delay_cycles: int
+    geometry: RigGeometry
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def plant_for_tuning(self) -> "RigIdentification":
+        """What :func:`capstan.controller.law.tuning.tune_controller` takes (this identification)."""
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain mapping (JSON/YAML-safe): each estimate as {value, stderr, unit, method}."""
+        out: dict[str, Any] = {k: getattr(self, k).to_dict() for k in ("K_c", "J_m", "b_m", "m_g_l", "J_l", "b_l")}
+        out["friction"] = {k: e.to_dict() for k, e in self.friction.items()}
+        out["io_delay_cycles"] = self.io_delay_cycles
+        g = self.geometry
+        out["geometry"] = {"r_in_m": g.r_in_m, "r_out_m": g.r_out_m, "theta_rad": g.theta_rad}
+        out["provenance"] = dict(self.provenance)
+        return out
+
+
+def identify_rig(held: RigRun, free: RigRun, geometry: RigGeometry | None = None,
+                 provenance: dict[str, Any] | None = None) -> RigIdentification:
+    """Fit the rig's plant from a link-held and a link-free run.
+
+    :param provenance: what to record with the result (runs' logs, dates); the fit adds its own.
+    :raises ModelError: if a run carries no information for a parameter (the message names it).
+    :raises ConfigError: on pulley radii that disagree with the runs'.
+    """
+    geo = geometry if geometry is not None else RigGeometry(held.r_in_m, held.r_out_m)
+    for run in (held, free):
+        if not (math.isclose(run.r_in_m, geo.r_in_m) and math.isclose(run.r_out_m, geo.r_out_m)):
+            raise ConfigError("geometry", f"pulley radii {geo.r_in_m:g} / {geo.r_out_m:g} m differ from the run "
+                              f"{run.source}'s {run.r_in_m:g} / {run.r_out_m:g} m")
+    k_h, k_f = fit_stiffness(held), fit_stiffness(free)
+    m_h: MotorFit = fit_motor(held)
+    m_f: MotorFit = fit_motor(free)
+    link: LinkFit = fit_link(free)
+    if not link.m_g_l.value > 0.0:
+        raise ModelError(f"free run: m g l fitted as {link.m_g_l.value:.3f} Nm (<= 0); is the link free and the IMU sign right?")
+    prov = {"fitted_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "held_run": held.source, "free_run": free.source,
+            "held_cycles": len(held), "free_cycles": len(free),
+            "tau_m_source": "drive's reported torque" if held.tau_m_is_measured else "torque command",
+            "motor_rmse_Nm": {"held": m_h.rmse_Nm, "free": m_f.rmse_Nm}, "link_rmse_Nm": link.rmse_Nm}
+    prov.update(provenance or {})
+    return RigIdentification(
+        K_c=combine(k_h, k_f, "K_c from both runs"),
+        J_m=combine(m_h.J_m, m_f.J_m, "J_m from both runs"),
+        b_m=combine(m_h.b_m, m_f.b_m, "b_m from both runs"),
+        m_g_l=link.m_g_l, J_l=link.J_l, b_l=link.b_l,
+        friction=fit_friction(free, geo.theta_rad),
+        io_delay_cycles=max(m_h.delay_cycles, m_f.delay_cycles),
+        geometry=geo, provenance=prov)
