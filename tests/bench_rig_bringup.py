@@ -28,10 +28,10 @@ def truth(plant_path: Path) -> dict[str, float]:
     p = yaml.safe_load(plant_path.read_text())
     link = p.get("output", {}).get("link", {})
     inp = p.get("input", {})
-    return {"K_c_Nm_rad": p.get("transmission", {}).get("stiffness_Nm_rad", 240.0),
-            "J_m_kg_m2": inp.get("motor_inertia_kg_m2", 0.73),
-            "b_m_Nms_rad": inp.get("motor_damping_Nms_rad", 0.5),
-            "m_g_l_Nm": link.get("m_g_l_Nm", 3.78), "J_l_kg_m2": link.get("inertia_kg_m2", 0.17),
+    return {"K_c": p.get("transmission", {}).get("stiffness_Nm_rad", 240.0),
+            "J_m": inp.get("motor_inertia_kg_m2", 0.73),
+            "b_m": inp.get("motor_damping_Nms_rad", 0.5),
+            "m_g_l": link.get("m_g_l_Nm", 3.78), "J_l": link.get("inertia_kg_m2", 0.17),
             "mu": p.get("transmission", {}).get("mu", 0.052),
             "T0_N": p.get("pretension", {}).get("T0_N", 150.0)}
 
@@ -68,8 +68,8 @@ def main(argv: list[str]) -> int:
             err = 100 * (v["value"] / tr[key] - 1)
             return f"{v['value']:.4g} ± {v.get('stderr', float('nan')):.2g} / {tr[key]:.4g} ({err:+.1f} %)"
         result = "tuned" if rep.get("ok") else f"stopped in {rep.get('step')}: {rep.get('reason', '')[:80]}"
-        print(f"| {r['plant']} | {result} | {r['wall_s']:.0f} | {cell('K_c_Nm_rad')} | {cell('J_m_kg_m2')} | "
-              f"{cell('m_g_l_Nm')} | {cell('J_l_kg_m2')} |", flush=True)
+        print(f"| {r['plant']} | {result} | {r['wall_s']:.0f} | {cell('K_c')} | {cell('J_m')} | "
+              f"{cell('m_g_l')} | {cell('J_l')} |", flush=True)
         (out_dir / f"report_{p.stem}.json").write_text(json.dumps(r, default=str, indent=1))
     print(f"\nload average at end {os.getloadavg()[0]:.1f}")
     return 0

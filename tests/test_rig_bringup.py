@@ -109,11 +109,23 @@ def test_a_limit_latches_a_fault_with_zero_torque_and_a_reason(fields: dict, wor
 
 def test_a_silent_load_cell_stops_the_move() -> None:
     ctl = _controller(_Constant(1.0))
+    for k in range(60):                             # the loop runs every 1 ms, the cells stop at 0
+        r = ctl.record[0]
+        r["t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * 1e-3
+        tau = ctl.step()
+    assert tau == 0.0
+    assert "load cells silent for 51 ms" in ctl.reason
+
+
+def test_a_host_stall_is_not_a_silent_device() -> None:
+    ctl = _controller(_Constant(1.0))
     _cycle(ctl, 0.0)
-    r = ctl.record[0]
-    r["t_s"], r["imu_t_s"], r["motor_t_s"], r["lc_t_s"] = 1.0, 1.0, 1.0, 0.9
-    assert ctl.step() == 0.0
-    assert "load cells silent for 100 ms" in ctl.reason
+    r = ctl.record[0]                               # the loop itself did not run for 80 ms:
+    r["t_s"], r["imu_t_s"], r["motor_t_s"], r["lc_t_s"] = 0.081, 0.081, 0.081, 0.0
+    assert ctl.step() == 1.0 and ctl.reason == ""   # the cells' last frame is old, but not their fault
+    assert ctl.longest_gap_s == pytest.approx(0.080)
+    r["t_s"], r["imu_t_s"], r["motor_t_s"] = 0.082, 0.082, 0.082
+    assert ctl.step() == 0.0 and "load cells silent for 82 ms" in ctl.reason
 
 
 def test_check_move_refuses_a_drive_that_does_not_move() -> None:

@@ -29,7 +29,9 @@ from capstan.tools.rig.start_config import BringupStop, RigStart, StepLimits
 
 log = logging.getLogger("capstan.rig")
 
-#: a sensor silent this long stops a move [s] (the load cells send at 1 kHz, the IMU at 400 Hz)
+#: a sensor silent this long stops a move [s] (the load cells send at 1 kHz, the IMU at 400 Hz);
+#: time the loop itself did not run (a host stall: the process got no CPU, as the daemon names
+#: it) is not the device's silence and is not counted
 SENSOR_TIMEOUT_S = 0.05
 
 
@@ -88,11 +90,14 @@ class ProfileController:
         self.on_stop: Any = None
         self._t0 = math.nan
         self._q_m0 = math.nan
+        self._t_prev = math.nan
+        #: longest interval the loop itself did not run [s]
+        self.longest_gap_s = 0.0
 
     def warmup(self) -> None:
         """Nothing to compile."""
 
-    def _limit(self, r: Any, t_s: float) -> str:
+    def _limit(self, r: Any, t_s: float, gap_s: float) -> str:
         L = self.limits
         if not abs(float(r["q_m_rad"]) - self._q_m0) <= L.q_m_range_rad:
             return f"motor travel {float(r['q_m_rad']) - self._q_m0:+.3f} rad beyond +-{L.q_m_range_rad} rad"
@@ -108,7 +113,7 @@ class ProfileController:
                 return f"tension {name} {T:.1f} N outside [{L.tension_min_N}, {L.tension_max_N}] N"
         for what, key in (("load cells", "lc_t_s"), ("IMU", "imu_t_s"), ("drive feedback", "motor_t_s")):
             age = t_s - float(r[key])
-            if not age <= SENSOR_TIMEOUT_S:
+            if not age <= SENSOR_TIMEOUT_S + gap_s:
                 return f"{what} silent for {age * 1e3:.0f} ms (limit {SENSOR_TIMEOUT_S * 1e3:.0f} ms): device lost"
         return ""
 
@@ -119,12 +124,15 @@ class ProfileController:
         if math.isnan(self._t0):
             self._t0, self._q_m0 = t_abs, float(r["q_m_rad"])
         t = t_abs - self._t0
+        gap = 0.0 if math.isnan(self._t_prev) else max(0.0, t_abs - self._t_prev - 0.001)
+        self._t_prev = t_abs
+        self.longest_gap_s = max(self.longest_gap_s, gap)
         r["tau_in_Nm"] = self.r_in_m * (float(r["T_up_in_N"]) - float(r["T_lo_in_N"]))
         r["T0_meas_N"] = 0.25 * (float(r["T_up_in_N"]) + float(r["T_up_out_N"]) + float(r["T_lo_out_N"])
                                  + float(r["T_lo_in_N"]))
         if int(r["fault_bits"]):
             return 0.0
-        reason = self._limit(r, t_abs)
+        reason = self._limit(r, t_abs, gap)
         tau = 0.0
         if not reason:
             try:
