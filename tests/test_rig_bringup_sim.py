@@ -117,3 +117,28 @@ def test_serve_prints_endpoints_and_stops_on_sigterm(tmp_path: Path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_whole_workflow_on_a_variant_ends_with_a_config_capstan_hil_accepts(tmp_path: Path,
+                                                                             capsys: pytest.CaptureFixture) -> None:
+    from capstan.controller.runtime.config import DaemonConfig
+    from capstan.controller.runtime.daemon import build_controller
+    plant = "variant_b.yaml"
+    truth = yaml.safe_load((PLANTS / plant).read_text())
+    code, rep, out = _bringup(tmp_path, plant, capsys)
+    assert code == 0 and rep["ok"], rep["reason"]
+    ident = rep["identification"]
+    # the bar: K_c, J_m and m g l within 10 % of the plant's truth
+    assert ident["K_c"]["value"] == pytest.approx(truth["transmission"]["stiffness_Nm_rad"], rel=0.10)
+    assert ident["J_m"]["value"] == pytest.approx(truth["input"]["motor_inertia_kg_m2"], rel=0.10)
+    assert ident["m_g_l"]["value"] == pytest.approx(truth["output"]["link"]["m_g_l_Nm"], rel=0.10)
+    cfg = DaemonConfig.load(out)                       # a complete daemon config ...
+    build_controller(cfg)                              # ... whose gains pass the start-up margins
+    assert cfg.imu["port"] == "auto" and "provenance" not in cfg.raw
+    assert "# Tuned by `capstan rig bringup`" in out.read_text()
+    res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(out), "--plant",
+                          str(PLANTS / plant), "--duration", "3", "--json"], capture_output=True, text=True,
+                         timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    summary = json.loads(res.stdout.splitlines()[-1])
+    assert summary["faults"] == [] and summary["cycles"] > 2500

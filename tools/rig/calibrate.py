@@ -6,7 +6,8 @@
   samples gives the input pair's gain (1 = right) to a few tenths of a percent, and each
   input channel's own gain within the cables' small asymmetry. The output pair cannot be
   tied to the drive through the sheath's friction; its two channels are checked against each
-  other (each output channel's change against its cable's input channel).
+  other (each output channel's change against its cable's input channel) for gross errors only
+  (:data:`OUTPUT_PAIR_BOUNDS`).
 * **zero** — at rest before the first move (no torque, link hanging) all four channels carry
   the pretension: each channel's offset is set so that it reads the four channels' mean
   (the pretension's common level stays as measured; the cells cannot be unloaded).
@@ -36,9 +37,13 @@ DEFAULT_SCALE = 250.0
 STILL_RATE_RAD_S = 0.02
 STILL_ACCEL_RAD_S2 = 0.5
 #: an input channel's own gain may differ from its pair's by the cables' asymmetry (~4 %
-#: on the reference rig) plus this; an output channel from the other by ~20 % plus this [-]
+#: on the reference rig) plus this [-]
 INPUT_CHANNEL_TOLERANCE = 0.10
-OUTPUT_PAIR_TOLERANCE = 0.35
+#: the output channels' ratio (each against its cable's input channel) spreads with the plant
+#: (0.83 on the reference rig, 0.61 on tests/plants/variant_b.yaml: the sheath's friction
+#: decides how much of each cable's change reaches its output side), so only a ratio outside
+#: these bounds is named: a grossly wrong sensitivity, not a few percent [-]
+OUTPUT_PAIR_BOUNDS = (0.45, 2.2)
 
 
 @dataclass
@@ -115,7 +120,7 @@ def calibrate(data: StepData, windows: list[tuple[str, float, float]], start: Ri
     ev["output_over_input"] = [ratio_up, ratio_lo]
     rel = ratio_up / ratio_lo if ratio_lo != 0 else float("nan")
     ev["output_pair_ratio"] = rel
-    if not abs(rel - 1.0) <= OUTPUT_PAIR_TOLERANCE:
+    if not OUTPUT_PAIR_BOUNDS[0] <= rel <= OUTPUT_PAIR_BOUNDS[1]:
         high = "T_up_out_N" if rel > 1 else "T_lo_out_N"
         findings.append(Finding("load_cells.scale_N_per_mV_V",
                                 f"the output channels disagree by {rel:.2f} x (each against its cable's input "
