@@ -69,12 +69,15 @@ class IndependentRig:
         law = self._law(exc, held)
         kx, bx = (CLAMP_K_NM_RAD, CLAMP_B_NMS_RAD) if held else (0.0, 0.0)
 
-        def rhs(t, z):
+        def split(z):
+            """(node state y, dq_in, dq_out, friction's (F, dF/ds, dF/dn), s, n)."""
             y = z[:ny]
-            dq_in, dq_out = z[ny], z[ny + 1]
             s = m.Sy @ y + m.Sc
             n = m.Ny @ y + m.Nc
-            F, _, _ = m._fric(s, n)
+            return y, z[ny], z[ny + 1], m._fric(s, n), s, n
+
+        def rhs(t, z):
+            y, dq_in, dq_out, (F, _, _), s, _ = split(z)
             dz = np.empty_like(z)
             dz[0] = dq_in
             dz[1:ny - 1] = (s - F) / m.P.b_node
@@ -87,11 +90,7 @@ class IndependentRig:
             return dz
 
         def jac(t, z):
-            y = z[:ny]
-            dq_in, dq_out = z[ny], z[ny + 1]
-            s = m.Sy @ y + m.Sc
-            n = m.Ny @ y + m.Nc
-            _, dFds, dFdn = m._fric(s, n)
+            y, dq_in, _, (_, dFds, dFdn), _, _ = split(z)
             J = np.zeros((ny + 2, ny + 2))
             J[0, ny] = 1.0
             J[1:ny - 1, :ny] = (m.Sy - dFds[:, None] * m.Sy - dFdn[:, None] * m.Ny) / m.P.b_node

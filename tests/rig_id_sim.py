@@ -18,13 +18,19 @@ CLAMP_K_NM_RAD = 5000.0
 CLAMP_B_NMS_RAD = 50.0
 
 
-def run_excitation(rig: SimulatedRig, exc: Excitation, held: bool) -> dict[str, np.ndarray]:
+#: the command's nominal delay in the lock-step runs [cycles] (the HIL log's motor torque lags 2)
+DELAY_CYCLES = 2
+
+
+def run_excitation(rig: SimulatedRig, exc: Excitation, held: bool, delay_cycles: int = DELAY_CYCLES) -> dict[str, np.ndarray]:
     """Run ``exc`` on ``rig`` at its dt (from the rig's current state) and return the record columns.
 
-    The command of cycle i is computed from the motor feedback of cycle i - 1 and acts during
-    cycle i (the rig has no further delay of its own).
+    The command of cycle i is computed from the motor feedback of cycle i - 1 and reaches the
+    motor through the rig's command path (``delay_cycles`` late, jittered and now and then lost
+    as the rig's ``sensors.command`` says); the log holds the command as sent.
     """
     exc.reset()
+    path = rig.command_path(delay_cycles)
     n = exc.n_cycles
     cols = {k: np.empty(n) for k in ("t_s", "q_m_rad", "dq_m_rad_s", "tau_m_cmd_Nm", "T_up_in_N", "T_up_out_N",
                                      "T_lo_out_N", "T_lo_in_N", "q_out_rad", "dq_out_rad_s", "imu_new")}
@@ -33,7 +39,7 @@ def run_excitation(rig: SimulatedRig, exc: Excitation, held: bool) -> dict[str, 
     for i in range(n):
         tau = exc.torque_Nm(i * exc.dt_s, q_m, dq_m)
         ext = -CLAMP_K_NM_RAD * rig.model.q_out_rad - CLAMP_B_NMS_RAD * rig.model.dq_out_rad_s if held else 0.0
-        rig.step(tau, ext, exc.dt_s)
+        rig.step(path.push(tau), ext, exc.dt_s)
         q_m, dq_m, _ = rig.motor_feedback()
         lc = rig.load_cells_N()
         new, q_o, dq_o = rig.imu_sample()

@@ -96,13 +96,6 @@ def plant_controller(ident: RigIdentification, base: Mapping[str, Any], k_sigma:
     m["plant"].update(stiffness_Nm_rad=K, motor_inertia_kg_m2=J, motor_damping_Nms_rad=max(ident.b_m.value, 0.0),
                       r_in_m=g.r_in_m, r_out_m=g.r_out_m)
     m["gravity"]["m_g_l_Nm"] = ident.m_g_l.value
-    fr = ident.friction
-    ff = m["feedforward"]
-    ff["mu"] = solve_mu(ControllerConfig.from_mapping(m), fr["tau_fc"].value, fr["T0"].value)
-    ff["zeta_s"] = max(fr["zeta_s"].value, ff["zeta_c"])
-    ff["eta_s_rad_s"] = fr["eta_s_rad_s"].value
-    ff["alpha_s_rad"] = fr["alpha_s_rad"].value
-    ff["b_vis_Nms_rad"] = max(fr["b_vis"].value, 0.0)
     tol_k = max(k_sigma * ident.K_c.rel_stderr, min_tolerance)
     tol_j = max(k_sigma * ident.J_m.rel_stderr, min_tolerance)
     st = m["stability"]
@@ -114,6 +107,14 @@ def plant_controller(ident: RigIdentification, base: Mapping[str, Any], k_sigma:
     fb["inertia_comp_kg_m2"] *= J / J0
     fb["link_inertia_comp_kg_m2"] *= ident.J_l.value / Jl0
     fb["deflection_damping_Nms_rad"] *= math.sqrt(K * J / (K0 * J0))
+    m = _with_factor(m, 1.0)       # the inertia compensations below what the check admits
+    fr = ident.friction
+    ff = m["feedforward"]
+    ff["mu"] = solve_mu(ControllerConfig.from_mapping(m), fr["tau_fc"].value, fr["T0"].value)
+    ff["zeta_s"] = max(fr["zeta_s"].value, ff["zeta_c"])
+    ff["eta_s_rad_s"] = fr["eta_s_rad_s"].value
+    ff["alpha_s_rad"] = fr["alpha_s_rad"].value
+    ff["b_vis_Nms_rad"] = max(fr["b_vis"].value, 0.0)
     return m
 
 

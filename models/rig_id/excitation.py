@@ -42,10 +42,18 @@ class ExcitationLimits:
     q_max_rad: float = 0.8
 
     def __post_init__(self) -> None:
-        for name in ("tau_max_Nm", "dq_max_rad_s", "q_max_rad"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
-                raise ConfigError(f"limits.{name}", f"must be a finite number > 0, got {v!r}")
+        require_positive(self, ("tau_max_Nm", "dq_max_rad_s", "q_max_rad"), "limits")
+
+
+def require_positive(obj: Any, names: tuple[str, ...], prefix: str) -> None:
+    """Check that each attribute ``names`` of ``obj`` is a finite number > 0.
+
+    :raises ConfigError: naming ``prefix.name`` and the value.
+    """
+    for name in names:
+        v = getattr(obj, name)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0.0):
+            raise ConfigError(f"{prefix}.{name}", f"must be a finite number > 0, got {v!r}")
 
 
 def schroeder_multisine(freqs_hz: np.ndarray, t_s: np.ndarray) -> np.ndarray:

@@ -19,9 +19,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from capstan.models.common.errors import ConfigError, ModelError
+from capstan.models.rig_id.excitation import require_positive
 from capstan.models.rig_id.fits import Estimate, LinkFit, MotorFit, fit_link, fit_motor, fit_stiffness
 from capstan.models.rig_id.friction import fit_friction
 from capstan.models.rig_id.runs import RigRun
@@ -39,10 +38,7 @@ class RigGeometry:
     theta_rad: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("r_in_m", "r_out_m", "theta_rad"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ConfigError(f"geometry.{name}", f"must be a finite number > 0, got {v!r}")
+        require_positive(self, ("r_in_m", "r_out_m", "theta_rad"), "geometry")
 
 
 #: relative uncertainty floor of the combined K_c and J_m: what two runs that agree still leave unresolved
