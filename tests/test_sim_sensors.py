@@ -14,13 +14,10 @@ from capstan.models.plant.drive_feedback import RAD_S_PER_RPM, DriveFeedback, Dr
 from capstan.models.plant.rig import SimulatedRig
 from capstan.models.plant.sensors import DeviceSettings, ImuErrors, ImuModel, LoadCellErrors, LoadCellModel, Mistakes
 
-LINK_PLANT = {
-    "transmission": {"n_nodes": 4},
-    "routing": {"length_m": 1.379, "theta_rad": 2.0},
-    "pretension": {"T0_N": 150.0},
-    "input": {"mode": "motor"},
-    "output": {"mode": "link"},
-}
+from test_rig import LINK_PLANT as IDEAL_LINK_PLANT  # noqa: E402
+
+#: the rig of test_rig.py with its devices left to each test (realistic when absent)
+LINK_PLANT = {k: v for k, v in IDEAL_LINK_PLANT.items() if k != "sensors"}
 CPR = 1 << 17
 COUNT_RAD = 2 * math.pi / CPR
 DT = 1e-3
