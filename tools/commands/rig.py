@@ -26,7 +26,8 @@ from typing import Callable
 
 from capstan.tools.hil.serve import ServedRig, load_plant
 from capstan.tools.rig.start_config import RigStart
-from capstan.tools.rig.workflow import bringup
+from capstan.models.common.errors import DriverError
+from capstan.tools.rig.workflow import BringupReport, bringup
 
 HELP = "rig bring-up: check, calibrate, identify, tune -> a tuned config (capstan rig bringup)"
 
@@ -74,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     start = RigStart.load(args.config)
     out = Path(args.out)
     served = None
+    rep = BringupReport()
     try:
         if args.plant is not None:
             served = ServedRig(load_plant(args.plant))
@@ -89,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
             hold_link = _interactive_hold()
             tuned_start = start
         rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start)
+    except DriverError as exc:                   # the served rig did not come up: nothing moved
+        rep.step, rep.reason = "check", f"{type(exc).__name__}: {exc}"
     finally:
         if served is not None:
             served.close()

@@ -24,7 +24,7 @@ import numpy as np
 from capstan.controller.law.records import RECORD_DTYPE, FaultBits, new_record
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.controller.runtime.daemon import Daemon
-from capstan.models.common.errors import ControlFaultError, DriverError
+from capstan.models.common.errors import CapstanError, ControlFaultError, DriverError
 from capstan.tools.rig.start_config import BringupStop, RigStart, StepLimits
 
 log = logging.getLogger("capstan.rig")
@@ -205,7 +205,9 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
     except ControlFaultError as exc:
         raise BringupStop(step, f"{name}: {ctl.reason or exc.reason} (torque zero, drive disabled; log "
                                 f"{daemon.summary.log_path})") from None
-    except DriverError as exc:
+    except BringupStop:
+        raise
+    except (DriverError, CapstanError) as exc:     # a device or the log writer failed: no torque was left on
         raise BringupStop(step, f"{name}: {type(exc).__name__}: {exc} (torque zero)") from None
     if not ctl.finished:
         raise BringupStop(step, f"{name}: the move did not finish within {max_duration_s:.0f} s "
