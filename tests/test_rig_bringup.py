@@ -193,3 +193,22 @@ def test_every_plant_fixture_is_a_valid_plant(name: str) -> None:
     HilSettings.from_mapping(cfg["hil"])
     rig = SimulatedRig.from_mapping(cfg["hil"]["plant"], "hil.plant")
     assert rig.spec.transmission.stiffness_Nm_rad > 0 and math.isfinite(rig.t_s)
+
+
+def test_tuned_mapping_is_a_daemon_config_with_provenance_as_comments(tmp_path: Path) -> None:
+    from capstan.controller.runtime.config import DaemonConfig
+    from capstan.tools.rig.tuned import provenance_comment, tuned_mapping
+    start = RigStart.from_mapping(start_mapping()).with_ports({"channel": "auto", "imu_port": "auto",
+                                                               "load_cells_port": "auto"})
+    controller = yaml.safe_load(config_path("rig.yaml").read_text())["controller"]
+    cal = {"scale_N_per_mV_V": [251.0, 250.0, 250.0, 249.0], "offset_N": [0.5, -0.5, 0.0, 0.0]}
+    mapping = tuned_mapping(start, controller, {"imu": {"sign": -1.0}, "load_cells": cal})
+    out = write_atomic(tmp_path / "config" / "tuned.yaml", mapping,
+                       provenance_comment({"date": "2026-11-28", "logs": ["a.mcap"], "fit": {"K_c": 1.0}}))
+    cfg = DaemonConfig.load(out)
+    assert cfg.imu["sign"] == -1.0 and cfg.imu["port"] == "auto"
+    assert cfg.load_cells["scale_N_per_mV_V"] == cal["scale_N_per_mV_V"]
+    assert cfg.motor["interface"] == "capstan_unix" and cfg.motor["channel"] == "auto"
+    assert cfg.logging.dir == tmp_path / "runs" / "logs"
+    text = out.read_text()
+    assert "# logs:" in text and "# - a.mcap" in text
