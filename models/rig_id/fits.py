@@ -130,8 +130,8 @@ class MotorFit:
     rmse_Nm: float
 
 
-def _motor_at(run: RigRun, cutoff_hz: float, max_delay_cycles: int) -> tuple[int, np.ndarray, np.ndarray, float]:
-    """(delay, theta = [J_m, b_m, c], cov, rmse) of the motor regression at one cutoff."""
+def _motor_at(run: RigRun, cutoff_hz: float, delays: range) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """(delay, theta = [J_m, b_m, c], cov, rmse) of the motor regression at one cutoff, the best of ``delays``."""
     dt = run.dt_s
     qf = _lowpass(run.q_m_rad, cutoff_hz, dt)
     dq = np.gradient(qf, dt)
@@ -142,7 +142,7 @@ def _motor_at(run: RigRun, cutoff_hz: float, max_delay_cycles: int) -> tuple[int
     sl = _trim(n)
     B = np.column_stack([ddq, dq, np.ones(n)])
     best = None
-    for d in range(max_delay_cycles + 1):
+    for d in delays:
         # the torque commanded at cycle i acts from cycle i + d
         y = np.r_[np.full(d, tau_m[0]), tau_m[:n - d]] - tau_in
         th, cov, r = _lsq(B[sl], y[sl])
@@ -165,8 +165,9 @@ def fit_motor(run: RigRun, cutoff_hz: float = 15.0, max_delay_cycles: int = 10) 
     """
     if np.ptp(run.q_m_rad) <= 0.0:
         raise ModelError("held run: the motor encoder did not move; nothing to identify J_m from")
-    fits = [_motor_at(run, f * cutoff_hz, max_delay_cycles) for f in (2.0 / 3.0, 1.0, 4.0 / 3.0)]
-    d, th, cov, rms = fits[1]
+    mid = _motor_at(run, cutoff_hz, range(max_delay_cycles + 1))
+    d, th, cov, rms = mid
+    fits = [_motor_at(run, 2.0 / 3.0 * cutoff_hz, range(d, d + 1)), mid, _motor_at(run, 4.0 / 3.0 * cutoff_hz, range(d, d + 1))]
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     spread = 0.5 * np.ptp(np.array([f[1] for f in fits]), axis=0)
     se = np.hypot(se, spread)

@@ -5,7 +5,8 @@ Where both runs determine a parameter (K_c, J_m, b_m: the free run's sweeps also
 cables and accelerate the motor), the two estimates are combined by their inverse variances and
 half their difference is added in quadrature as a systematic term: two runs of different
 motion that disagree by more than their statistics say show a model error the sandwich
-covariance of one run cannot see.
+covariance of one run cannot see. Every value fitted from measured torques also carries the
+torques' calibrated scale uncertainty (:data:`TORQUE_SCALE_REL_STDERR` unless given).
 
 Friction: the reduced model (paper eq 21) on the free run's transmission loss
 (:mod:`capstan.models.rig_id.friction`); its magnitude scales with the measured pretension and
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from capstan.models.common.errors import ConfigError, ModelError
@@ -41,19 +42,18 @@ class RigGeometry:
         require_positive(self, ("r_in_m", "r_out_m", "theta_rad"), "geometry")
 
 
-#: relative uncertainty floor of the combined K_c and J_m: what two runs that agree still leave unresolved
-#: (on the simulated rig the fits' largest bias against its truth is -0.3 % in J_m, over every variant and
-#: seed of docs/results/rig-identification.md; a rig's own unmodelled effects add to it)
-REL_FLOOR = 0.005
+#: relative 1-sigma uncertainty of the load cells' (and the drive's) torque scale after calibration [-]:
+#: every value fitted from those torques (K_c, J_m, b_m, m g l, J_l, b_l, tau_fc) scales with it, and no
+#: run can see it (the simulated rig's realistic cells carry +-0.3 % per channel); pass the calibration's own
+TORQUE_SCALE_REL_STDERR = 0.005
 
 
 def combine(a: Estimate, b: Estimate, method: str) -> Estimate:
     """Inverse-variance mean of two estimates of one quantity, half their difference added in
-    quadrature to its standard error (a systematic term when the runs disagree), and at least
-    :data:`REL_FLOOR` of the value."""
+    quadrature to its standard error (a systematic term when the runs disagree)."""
     wa, wb = 1.0 / max(a.stderr, 1e-300) ** 2, 1.0 / max(b.stderr, 1e-300) ** 2
     v = (wa * a.value + wb * b.value) / (wa + wb)
-    se = max(math.hypot(1.0 / math.sqrt(wa + wb), 0.5 * (a.value - b.value)), REL_FLOOR * abs(v))
+    se = math.hypot(1.0 / math.sqrt(wa + wb), 0.5 * (a.value - b.value))
     return Estimate(v, se, a.unit, f"{method}: held {a.value:.4g} +- {a.stderr:.2g}, free {b.value:.4g} +- {b.stderr:.2g}")
 
 
@@ -92,11 +92,19 @@ class RigIdentification:
         return out
 
 
+def with_scale(e: Estimate, rel: float) -> Estimate:
+    """``e`` with a relative scale uncertainty ``rel`` added in quadrature."""
+    return replace(e, stderr=math.hypot(e.stderr, rel * e.value))
+
+
 def identify_rig(held: RigRun, free: RigRun, geometry: RigGeometry | None = None,
-                 provenance: dict[str, Any] | None = None) -> RigIdentification:
+                 provenance: dict[str, Any] | None = None,
+                 torque_scale_rel_stderr: float = TORQUE_SCALE_REL_STDERR) -> RigIdentification:
     """Fit the rig's plant from a link-held and a link-free run.
 
     :param provenance: what to record with the result (runs' logs, dates); the fit adds its own.
+    :param torque_scale_rel_stderr: the torque measurements' relative scale uncertainty (the
+        calibration's), added to every value fitted from them.
     :raises ModelError: if a run carries no information for a parameter (the message names it).
     :raises ConfigError: on pulley radii that disagree with the runs'.
     """
@@ -117,11 +125,15 @@ def identify_rig(held: RigRun, free: RigRun, geometry: RigGeometry | None = None
             "tau_m_source": "drive's reported torque" if held.tau_m_is_measured else "torque command",
             "motor_rmse_Nm": {"held": m_h.rmse_Nm, "free": m_f.rmse_Nm}, "link_rmse_Nm": link.rmse_Nm}
     prov.update(provenance or {})
+    rel = float(torque_scale_rel_stderr)
+    prov["torque_scale_rel_stderr"] = rel
+    fr = fit_friction(free, geo.theta_rad)
+    fr.update({k: with_scale(fr[k], rel) for k in ("tau_fc", "b_vis", "mu_theta", "mu")})
     return RigIdentification(
-        K_c=combine(k_h, k_f, "K_c from both runs"),
-        J_m=combine(m_h.J_m, m_f.J_m, "J_m from both runs"),
-        b_m=combine(m_h.b_m, m_f.b_m, "b_m from both runs"),
-        m_g_l=link.m_g_l, J_l=link.J_l, b_l=link.b_l,
-        friction=fit_friction(free, geo.theta_rad),
+        K_c=with_scale(combine(k_h, k_f, "K_c from both runs"), rel),
+        J_m=with_scale(combine(m_h.J_m, m_f.J_m, "J_m from both runs"), rel),
+        b_m=with_scale(combine(m_h.b_m, m_f.b_m, "b_m from both runs"), rel),
+        m_g_l=with_scale(link.m_g_l, rel), J_l=with_scale(link.J_l, rel), b_l=with_scale(link.b_l, rel),
+        friction=fr,
         io_delay_cycles=max(m_h.delay_cycles, m_f.delay_cycles),
         geometry=geo, provenance=prov)
