@@ -17,7 +17,7 @@ that on testbed runs, where the environment decorrelates them).
 The magnitude scales with the pretension and the bending (eq 19, ``tau_fc = mu theta T0_eq r_out``):
 the pretension is measured (the load cells' mean; ``T0_eq`` is a per-cable sum of two tensions,
 so ~2x that mean), the bending comes from the drawings, and ``mu`` follows (first order; the controller's own pretension
-field turns tau_fc into its ``mu`` exactly, see ``controller/law/tuning.py``).
+field turns tau_fc into its ``mu`` exactly, see ``controller/law/tuning/``).
 """
 
 from __future__ import annotations

@@ -113,9 +113,12 @@ def identify_rig(held: RigRun, free: RigRun, geometry: RigGeometry | None = None
         if not (math.isclose(run.r_in_m, geo.r_in_m) and math.isclose(run.r_out_m, geo.r_out_m)):
             raise ConfigError("geometry", f"pulley radii {geo.r_in_m:g} / {geo.r_out_m:g} m differ from the run "
                               f"{run.source}'s {run.r_in_m:g} / {run.r_out_m:g} m")
-    k_h, k_f = fit_stiffness(held), fit_stiffness(free)
-    m_h: MotorFit = fit_motor(held)
-    m_f: MotorFit = fit_motor(free)
+    k_h, m_h = fit_stiffness(held), fit_motor(held)
+    try:         # the free run's sweeps deflect the cables and move the motor too: a second estimate
+        k_f: Estimate | None = fit_stiffness(free)
+        m_f: MotorFit | None = fit_motor(free)
+    except ModelError:
+        k_f = m_f = None
     link: LinkFit = fit_link(free)
     if not link.m_g_l.value > 0.0:
         raise ModelError(f"free run: m g l fitted as {link.m_g_l.value:.3f} Nm (<= 0); is the link free and the IMU sign right?")
@@ -123,17 +126,17 @@ def identify_rig(held: RigRun, free: RigRun, geometry: RigGeometry | None = None
             "held_run": held.source, "free_run": free.source,
             "held_cycles": len(held), "free_cycles": len(free),
             "tau_m_source": "drive's reported torque" if held.tau_m_is_measured else "torque command",
-            "motor_rmse_Nm": {"held": m_h.rmse_Nm, "free": m_f.rmse_Nm}, "link_rmse_Nm": link.rmse_Nm}
+            "motor_rmse_Nm": {"held": m_h.rmse_Nm, "free": m_f.rmse_Nm if m_f else None}, "link_rmse_Nm": link.rmse_Nm}
     prov.update(provenance or {})
     rel = float(torque_scale_rel_stderr)
     prov["torque_scale_rel_stderr"] = rel
     fr = fit_friction(free, geo.theta_rad)
     fr.update({k: with_scale(fr[k], rel) for k in ("tau_fc", "b_vis", "mu_theta", "mu")})
     return RigIdentification(
-        K_c=with_scale(combine(k_h, k_f, "K_c from both runs"), rel),
-        J_m=with_scale(combine(m_h.J_m, m_f.J_m, "J_m from both runs"), rel),
-        b_m=with_scale(combine(m_h.b_m, m_f.b_m, "b_m from both runs"), rel),
+        K_c=with_scale(combine(k_h, k_f, "K_c from both runs") if k_f else k_h, rel),
+        J_m=with_scale(combine(m_h.J_m, m_f.J_m, "J_m from both runs") if m_f else m_h.J_m, rel),
+        b_m=with_scale(combine(m_h.b_m, m_f.b_m, "b_m from both runs") if m_f else m_h.b_m, rel),
         m_g_l=with_scale(link.m_g_l, rel), J_l=with_scale(link.J_l, rel), b_l=with_scale(link.b_l, rel),
         friction=fr,
-        io_delay_cycles=max(m_h.delay_cycles, m_f.delay_cycles),
+        io_delay_cycles=max(m_h.delay_cycles, m_f.delay_cycles if m_f else 0),
         geometry=geo, provenance=prov)
