@@ -33,7 +33,7 @@ def start_mapping() -> dict:
 
 def test_shipped_start_config_loads() -> None:
     s = RigStart.from_mapping(start_mapping())
-    assert s.drawing.r_in_m == 0.04 and s.limits.tau_max_Nm == 3.0
+    assert s.drawing.r_in_m == 0.04 and s.limits.tau_max_Nm == 4.0
     assert s.calibration.reference == "drive_torque"
 
 

@@ -62,7 +62,7 @@ class StepLimits:
     :ivar tension_max_N: highest tension [N].
     """
 
-    tau_max_Nm: float = 3.0
+    tau_max_Nm: float = 4.0
     dq_m_max_rad_s: float = 3.0
     q_m_range_rad: float = 1.0
     q_out_max_rad: float = 0.9
