@@ -26,7 +26,9 @@ from typing import Callable
 
 from capstan.tools.hil.serve import ServedRig, load_plant
 from capstan.tools.rig.start_config import RigStart
+from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import DriverError
+from capstan.tools.offline.shipped import config_path
 from capstan.tools.rig.workflow import BringupReport, bringup
 
 HELP = "rig bring-up: check, calibrate, identify, tune -> a tuned config (capstan rig bringup)"
@@ -90,7 +92,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             hold_link = _interactive_hold()
             tuned_start = start
-        rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start)
+        # the controller structure the tuning scales: the shipped rig's, or on the simulated
+        # rig the shipped HIL config's (its staleness limits allow for a shared VM's stalls)
+        base = load_yaml(config_path("hil.yaml" if args.plant is not None else "rig.yaml"))["controller"]
+        rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start, base_controller=base)
     except DriverError as exc:                   # the served rig did not come up: nothing moved
         rep.step, rep.reason = "check", f"{type(exc).__name__}: {exc}"
     finally:
