@@ -36,9 +36,6 @@ HELP = "rig bring-up: check, calibrate, identify, tune -> a tuned config (capsta
 log = logging.getLogger("capstan.rig")
 
 EXIT_REFUSED = 3
-#: time for the served rig to compile its plant and open its devices [s] (a loaded 2-core
-#: machine takes over two minutes on a cold Numba cache)
-SERVE_START_TIMEOUT_S = 300.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -81,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.plant is not None:
             served = ServedRig(load_plant(args.plant))
-            ports = served.start(SERVE_START_TIMEOUT_S)
+            ports = served.start()
             tuned_start = start.with_ports({"channel": "auto", "imu_port": "auto", "load_cells_port": "auto"})
             start = start.with_ports(ports)
             pid = int(ports["pid"])
