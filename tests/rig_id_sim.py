@@ -110,16 +110,18 @@ if __name__ == "__main__":      # the study of docs/results/rig-identification.m
 
     seeds = range(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
     out = {}
-    for name, plant in VARIANTS.items():
-        tr = truth(plant)
-        for seed in seeds:
+    for seed in seeds:
+        for name, plant in VARIANTS.items():
+            tr = truth(plant)
             ident, _, _ = identify_plant(plant, seed)
             d = ident.to_dict()
             row = {k: {"true": tr[k], "value": d[k]["value"], "stderr": d[k]["stderr"]}
                    for k in ("K_c", "J_m", "b_m", "m_g_l", "J_l", "b_l")}
-            row["mu"] = {"true": tr["mu"], "value": d["friction"]["mu"]["value"], "stderr": d["friction"]["mu"]["stderr"]}
+            row["mu_theta"] = {"true": tr["mu"] * plant["routing"]["theta_rad"], "value": d["friction"]["mu_theta"]["value"],
+                               "stderr": d["friction"]["mu_theta"]["stderr"]}
             row["tau_fc"] = {"value": d["friction"]["tau_fc"]["value"], "stderr": d["friction"]["tau_fc"]["stderr"]}
             out.setdefault(name, []).append(row)
             print(name, seed, json.dumps({k: [round(v["value"], 4), round(v["stderr"], 4)] for k, v in row.items()}),
                   flush=True)
-    json.dump(out, open(sys.argv[2] if len(sys.argv) > 2 else "rig_id_study.json", "w"), indent=1)
+            with open(sys.argv[2] if len(sys.argv) > 2 else "rig_id_study.json", "w") as fh:
+                json.dump(out, fh, indent=1)

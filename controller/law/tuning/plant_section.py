@@ -61,6 +61,11 @@ def plant_controller(ident: RigIdentification, base: Mapping[str, Any], k_sigma:
     fb["inertia_comp_kg_m2"] *= J / J0
     fb["link_inertia_comp_kg_m2"] *= ident.J_l.value / Jl0
     fb["deflection_damping_Nms_rad"] *= math.sqrt(K * J / (K0 * J0))
+    # at rest (kp, b faded out) the integral alone closes the loop on the motor-cable resonance, whose
+    # peak |P| ~ 1 / (2 zeta) over omega x ki / omega: keep ki / (omega zeta) = 2 J ki / B_m as the base had it
+    B0, B = base_cfg.plant.motor_damping_Nms_rad, max(ident.b_m.value, 0.0)
+    if B0 > 0.0:
+        fb["ki_1_s"] *= min(1.0, (B / J) / (B0 / J0))
     m = with_factor(m, 1.0)       # the inertia compensations below what the check admits
     fr = ident.friction
     ff = m["feedforward"]

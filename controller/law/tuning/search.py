@@ -15,15 +15,18 @@ From a :class:`capstan.models.rig_id.identify.RigIdentification` and a base cont
    their uncertainty (``k_sigma`` standard errors, at least ``min_tolerance``);
 2. the base gains are carried to the identified plant by their physics: the inertia
    compensations in proportion to the inertia they compensate (J_m, J_l), the deflection damping
-   in proportion to the motor-cable mode's critical damping ``sqrt(K_c J_m)``; dimensionless gains
-   (kp, band, output torque gains) as they are;
+   in proportion to the motor-cable mode's critical damping ``sqrt(K_c J_m)``, the integral gain with
+   the motor's damping rate ``B_m / J_m`` (never up: at rest it alone closes the loop on the
+   motor-cable resonance, whose peak goes as 1 / damping); dimensionless gains (kp, band, output
+   torque gains) as they are;
 3. a transparency factor ``s`` on kp, the band gain, the output torque gain and both inertia
    compensations is searched (largest first, then bisection) for the largest value with which
    :func:`capstan.controller.law.stability.analyse` passes the same start-up rules the daemon
    applies (:func:`check_margins`: PM, GM, the faded gains and the grip points). The search
    screens candidates on the grid points that limited the base candidate (``analyse_point`` on
    those), and the chosen one is confirmed by the full analysis; a candidate the full analysis
-   rejects is stepped down.
+   rejects is stepped down (x 0.9), or, when what fails is the loop at rest (the faded gains: the
+   integral alone), its integral gain is halved (down to a tenth).
 """
 
 from __future__ import annotations
@@ -107,7 +110,7 @@ def tune_controller(ident: RigIdentification, base: Mapping[str, Any], k_sigma: 
 
     def full(s: float) -> StabilityReport:
         rep = analyse(ControllerConfig.from_mapping(with_factor(m0, s)))
-        tried.append({"factor": s, "check": "full", "ok": rep.ok, "phase_margin_deg": rep.worst_phase_margin_deg,
+        tried.append({"factor": s, "ki_1_s": m0["feedback"]["ki_1_s"], "check": "full", "ok": rep.ok, "phase_margin_deg": rep.worst_phase_margin_deg,
                       "gain_margin_dB": rep.worst_gain_margin_dB, "grip_ok": rep.grip_ok})
         return rep
 
@@ -142,8 +145,12 @@ def tune_controller(ident: RigIdentification, base: Mapping[str, Any], k_sigma: 
             else:
                 bad = mid
     rep = first if good == 1.0 else full(good)
+    ki_floor = 0.1 * m0["feedback"]["ki_1_s"]
     while not rep.ok:
-        good *= 0.9
+        if rep.faded and not all(f[3] for f in rep.faded) and m0["feedback"]["ki_1_s"] > ki_floor:
+            m0["feedback"]["ki_1_s"] *= 0.5      # the loop at rest (kp, b faded out) is the integral's
+        else:
+            good *= 0.9
         if good < FACTORS[-1] * 0.9:
             raise ModelError(f"no transparency factor passes the full start-up check: {rep.summary()}")
         rep = full(good)
