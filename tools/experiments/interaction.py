@@ -300,13 +300,16 @@ def phase_means(tau_h_Nm: np.ndarray, dq_ref_rad_s: np.ndarray) -> dict[str, flo
 
 def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference", "motor"),
                    conditions: tuple[str, ...] = tuple(CONDITIONS), seed: int = 0,
-                   progress: Callable[[str], None] | None = None, delay_cycles: int = 0) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, delay_cycles: int = 0,
+                   devices: DeviceSettings | None = None) -> dict[str, Any]:
     """All controllers x conditions (and both feedforward placements for the ``*_ff`` ones).
 
     :param delay_cycles: the loop's command delay (0: the lock-step idealisation).
+    :param devices: the rig's device models (None: realistic).
     :returns: ``{condition: {controller[@placement]: metrics}}`` plus the condition descriptions.
     """
-    out: dict[str, Any] = {"conditions": {}, "results": {}, "delay_cycles": int(delay_cycles),
+    dev = devices if devices is not None else DeviceSettings.realistic()
+    out: dict[str, Any] = {"conditions": {}, "results": {}, "delay_cycles": int(delay_cycles), "devices": dev.label,
                            "loop": "lock-step idealisation (no delay)" if delay_cycles == 0 else
                            f"command delayed {int(delay_cycles)} cycles as in the daemon; IMU at 400 Hz"}
     for cname in conditions:
@@ -319,7 +322,8 @@ def run_experiment(duration_s: float, placements: tuple[str, ...] = ("reference"
                 key = name if not ff or placement == "reference" else f"{name}@{placement}"
                 try:
                     mapping = controller_mapping(cond, loop, ff, placement, CONTROLLER_EXTRA.get(name))
-                    res[key] = run_interaction(cond, mapping, duration_s, seed, delay_cycles=delay_cycles)
+                    res[key] = run_interaction(cond, mapping, duration_s, seed, delay_cycles=delay_cycles,
+                                               devices=dev)
                 except OperatingRangeError as exc:      # e.g. cable slack: a result, not a crash
                     res[key] = {"mean_abs_tau_h_Nm": math.nan, "error": str(exc), "faulted": 1.0}
                 if progress is not None:
