@@ -136,9 +136,13 @@ def test_whole_workflow_on_a_variant_ends_with_a_config_capstan_hil_accepts(tmp_
     build_controller(cfg)                              # ... whose gains pass the start-up margins
     assert cfg.imu["port"] == "auto" and "provenance" not in cfg.raw
     assert "# Tuned by `capstan rig bringup`" in out.read_text()
-    res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(out), "--plant",
-                          str(PLANTS / plant), "--duration", "3", "--json"], capture_output=True, text=True,
-                         timeout=600)
+    from hil_helpers import run_until_undisturbed
+
+    def attempt() -> tuple[subprocess.CompletedProcess, str]:
+        res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "hil", "--config", str(out), "--plant",
+                              str(PLANTS / plant), "--duration", "3", "--json"], capture_output=True, text=True,
+                             timeout=900)
+        return res, (res.stdout.splitlines() or [""])[-1]
+    res, summary = run_until_undisturbed(attempt, out)         # a host stall of the shared VM is rerun
     assert res.returncode == 0, res.stderr[-2000:]
-    summary = json.loads(res.stdout.splitlines()[-1])
     assert summary["faults"] == [] and summary["cycles"] > 2500
