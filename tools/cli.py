@@ -42,6 +42,7 @@ COMMANDS: dict[str, str] = {
     "config": "capstan.tools.commands.config",
     "recover": "capstan.tools.commands.recover",
     "archive": "capstan.tools.commands.archive",
+    "rig": "capstan.tools.commands.rig",
 }
 
 _SUMMARIES: dict[str, str] = {
@@ -58,6 +59,7 @@ _SUMMARIES: dict[str, str] = {
     "config": "list or print the shipped configuration files, or the reference of every key",
     "recover": "rewrite a log cut off by a crash into a valid indexed file",
     "archive": "rewrite a live log as a lossless columnar archive",
+    "rig": "rig bring-up: check, calibrate, identify, tune -> a tuned config",
 }
 
 

@@ -1,4 +1,5 @@
-"""``capstan hil [--config config/hil.yaml] --duration-s S [--json]``: hardware-in-the-loop run.
+"""``capstan hil [--config config/hil.yaml] [--plant PLANT.yaml] --duration-s S [--json]``: hardware-in-the-loop
+run; ``capstan hil --serve --plant PLANT.yaml``: the simulated rig alone.
 
 Starts the simulated rig in its own process (:mod:`capstan.tools.hil.plant`: plant in real
 time, simulated drive on a fresh ``capstan_unix`` bus, IMU and load cells on pty
@@ -9,6 +10,12 @@ records, log path (plus the plant's and the processes' CPU figures; under ``plan
 the simulated rig's statistics, with ``hand`` the interaction torque of ``hil.hand`` and
 ``effects`` the effects injected into the plant).
 
+With ``--plant`` the simulated rig is the plant file's (:mod:`capstan.tools.hil.serve`: the
+``hil.plant`` keys plus the devices' ``sensors``) and its devices are the served hardware, not
+the config's device sections: the daemon meets the rig as it would a real one. ``--serve``
+runs only that rig, prints its device endpoints as one JSON line
+``{"channel", "imu_port", "load_cells_port", "pid"}`` and runs until SIGINT/SIGTERM.
+
 Exit codes as ``capstan run`` (0 ok, 2 start-up error, 3 control fault, 4 device loss);
 4 also if the simulated rig failed (e.g. cable slack) or its process died.
 """
@@ -18,12 +25,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
-import select
 import shutil
 import signal
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -34,75 +37,29 @@ from capstan.controller.law.records import FaultBits
 from capstan.tools.commands.run import EXIT_DEVICE_LOST, EXIT_FAULT
 from capstan.controller.runtime.config import DaemonConfig
 from capstan.models.common.config_tools import load_yaml
-from capstan.models.common.errors import ControlFaultError, DeviceTimeoutError, DriverError, UsageError
+from capstan.models.common.errors import ConfigError, ControlFaultError, DeviceTimeoutError, DriverError, UsageError
+from capstan.tools.hil.serve import (PLANT_START_TIMEOUT_S, RigProcess, ServedRig, load_plant, served_config,
+                                     with_devices, write_config)
 from capstan.tools.offline.shipped import config_path
 
 HELP = "hardware-in-the-loop: simulated rig in its own process + the daemon unchanged"
 
 log = logging.getLogger("capstan.hil")
 
-#: time for the rig process to compile its plant and open its devices [s]
-PLANT_START_TIMEOUT_S = 120.0
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``capstan hil``."""
     parser.add_argument("--config", default=None,
                         help="HIL config YAML (default: the shipped hil.yaml, logs under ./runs/hil)")
-    duration = parser.add_mutually_exclusive_group(required=True)
-    duration.add_argument("--duration-s", type=float, metavar="S", help="seconds of control")
+    parser.add_argument("--plant", default=None, metavar="PLANT.yaml",
+                        help="simulated rig from this plant file (hil.plant keys + sensors) instead of the config's")
+    parser.add_argument("--serve", action="store_true",
+                        help="run only the simulated rig of --plant; print its endpoints as one JSON line; "
+                             "stop on SIGINT/SIGTERM")
+    duration = parser.add_mutually_exclusive_group()
+    duration.add_argument("--duration-s", type=float, default=None, metavar="S",
+                          help="seconds of control (required unless --serve)")
     duration.add_argument("--duration", dest="duration_s", type=float, help=argparse.SUPPRESS)   # deprecated spelling
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-
-
-def with_devices(cfg: Mapping[str, Any], ports: Mapping[str, Any]) -> dict[str, Any]:
-    """Copy of the config with ``auto`` bus channel and serial ports replaced by the rig's."""
-    out = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in cfg.items()}
-    if out.get("motor", {}).get("channel") == "auto":
-        out["motor"]["channel"] = ports["channel"]
-    if out.get("imu", {}).get("port") == "auto":
-        out["imu"]["port"] = ports["imu_port"]
-    if out.get("load_cells", {}).get("port") == "auto":
-        out["load_cells"]["port"] = ports["load_cells_port"]
-    return out
-
-
-class RigProcess:
-    """The simulated rig child process and its stdout protocol."""
-
-    def __init__(self, config_path: Path, channel: str) -> None:
-        cmd = [sys.executable, "-m", "capstan.tools.hil.plant", "--config", str(config_path), "--channel", channel,
-               "--parent-pid", str(os.getpid())]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-
-    def wait_ready(self, timeout_s: float) -> dict[str, Any]:
-        """The handshake line of the rig.
-
-        :raises DeviceTimeoutError: if the rig does not come up in time or exits.
-        """
-        assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
-        line = self.proc.stdout.readline() if ready else ""
-        if not line:
-            exited = ready                          # end of stream: the rig process ended
-            self.stop()
-            if exited:
-                raise DeviceTimeoutError(f"simulated rig exited during start-up with code "
-                                         f"{self.proc.returncode} (its error is logged above)")
-            raise DeviceTimeoutError(f"simulated rig did not start within {timeout_s} s")
-        return json.loads(line)
-
-    def stop(self, timeout_s: float = 10.0) -> dict[str, Any]:
-        """SIGTERM, wait, and return the rig's statistics line ({} if none)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            out, _ = self.proc.communicate(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            out, _ = self.proc.communicate()
-        lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
-        return json.loads(lines[-1]) if lines else {}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,8 +67,10 @@ def run(args: argparse.Namespace) -> int:
 
     :raises CapstanError: on configuration or start-up errors (exit code 2).
     """
-    if not args.duration_s > 0:
-        raise UsageError(f"--duration-s must be > 0, got {args.duration_s}")
+    if args.serve:
+        return serve(args)
+    if args.duration_s is None or not args.duration_s > 0:
+        raise UsageError(f"--duration-s must be given and > 0, got {args.duration_s}")
     path = config_path("hil.yaml") if args.config is None else Path(args.config)
     # relative log dirs: beside the config folder of a checkout, the working directory for
     # the shipped config (never inside the installed package)
@@ -119,7 +78,11 @@ def run(args: argparse.Namespace) -> int:
     raw = load_yaml(path)
     DaemonConfig.from_mapping(raw, base_dir=base_dir, source=path)  # fail early
     channel = tempfile.mkdtemp(prefix="capstan-can-")
-    rig = RigProcess(path, channel)
+    rig_path = path
+    if args.plant is not None:
+        rig_path = write_config(served_config(load_plant(args.plant), raw.get("hil")),
+                                Path(channel + "-rig.yaml"))
+    rig = RigProcess(rig_path, channel)
     daemon: Daemon | None = None
     code = 0
     plant: dict[str, Any] = {}
@@ -143,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         plant = rig.stop()
         shutil.rmtree(channel, ignore_errors=True)
+        if rig_path != path:
+            rig_path.unlink(missing_ok=True)
     if "error" in plant:
         code = 4
     summary = summarize(daemon, plant, time.monotonic() - t_wall)
@@ -159,6 +124,35 @@ def run(args: argparse.Namespace) -> int:
                   f"{100 * c['cmd_hf_share']:.1f} % of its power above 20 Hz, {c['rate_limit_hits']} rate-limit hits; "
                   f"tau_in std {c['tau_in_std_Nm']:.4f} Nm")
     return code
+
+
+def serve(args: argparse.Namespace) -> int:
+    """``--serve``: the rig alone until SIGINT/SIGTERM; 4 if it stopped on its own.
+
+    :raises ConfigError: without ``--plant`` or on an unreadable plant file.
+    """
+    if args.plant is None:
+        raise ConfigError("--plant", "--serve needs the plant file to serve")
+    stop = {"now": False}
+
+    def _on_signal(signum: int, frame: Any) -> None:
+        stop["now"] = True
+
+    old = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    served = ServedRig(load_plant(args.plant))
+    try:
+        print(json.dumps(served.start()), flush=True)
+        while not stop["now"] and served.alive():
+            time.sleep(0.05)
+        died = not served.alive()
+    finally:
+        stats = served.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    if died or "error" in stats:
+        log.error("the simulated rig stopped on its own: %s", stats.get("error", "process ended"))
+        return 4
+    return 0
 
 
 def summarize(daemon: Daemon | None, plant: Mapping[str, Any], wall_s: float) -> dict[str, Any]:

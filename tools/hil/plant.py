@@ -24,6 +24,9 @@ Protocol with the parent on stdout: one JSON line once ready
 ``{"channel", "imu_port", "load_cells_port", "pid"}``; one JSON line of statistics at the
 end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects,
 ``devices``: the device models).
+SIGUSR1 clamps the link where it is (a stiff spring-damper :data:`CLAMP_STIFFNESS_NM_RAD`,
+:data:`CLAMP_DAMPING_NMS_RAD` about the angle at that moment, as a person holding it against
+a stop: the held identification run of ``capstan rig bringup``); SIGUSR2 releases it.
 It stops on SIGTERM, :data:`ORPHAN_GRACE_S` after its parent dies (a real rig outlives a
 killed daemon: the drive's own heartbeat watch must get to act first), or on a plant error
 (cable slack, integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
@@ -62,6 +65,10 @@ EXIT_PLANT_ERROR = 4
 #: consumer heartbeat time a config may set (motor.consumer_timeout_s ≤ 1 s), so the drive's
 #: own watch acts first, as on a rig
 ORPHAN_GRACE_S = 1.5
+#: the clamp of SIGUSR1: stiffness [Nm/rad] and damping [Nm s/rad] about the clamped angle
+#: (about 17 Hz with the reference link, far above the link's own 0.8 Hz)
+CLAMP_STIFFNESS_NM_RAD = 2000.0
+CLAMP_DAMPING_NMS_RAD = 10.0
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,8 @@ class HilSettings:
     :ivar hand: the hand moving the link (None: no hand).
     :ivar imu_boot_baudrate: line rate the simulated MTi boots at (``hil.imu.boot_baudrate``,
         default 115200 like a new unit, so the daemon's start-up searches the rate) [Bd].
+    :ivar load_cells_silent_after_s: device fault (``hil.faults``): the load-cell amplifier
+        stops sending this long after the drive is first enabled (0 = never) [s].
     """
 
     period_s: float = 1e-3
@@ -88,12 +97,15 @@ class HilSettings:
                                                   helper_priority=69)
     hand: HandSettings | None = None
     imu_boot_baudrate: int = 115200
+    load_cells_silent_after_s: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], prefix: str = "hil") -> "HilSettings":
         """:raises ConfigError: naming the offending key."""
-        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand", "imu"},
-                       prefix)
+        reject_unknown(cfg, {"plant", "period_s", "max_catch_up_s", "tau_ext", "drive", "realtime", "hand", "imu",
+                             "faults"}, prefix)
+        faults = section(cfg, "faults", prefix, required=False)
+        reject_unknown(faults, {"load_cells_silent_after_s"}, f"{prefix}.faults")
         imu = section(cfg, "imu", prefix, required=False)
         reject_unknown(imu, {"boot_baudrate"}, f"{prefix}.imu")
         boot_bd = get_int(imu, "boot_baudrate", f"{prefix}.imu", 115200)
@@ -124,6 +136,7 @@ class HilSettings:
                              helper_priority=prio - 1),
             HandSettings.from_mapping(section(cfg, "hand", prefix), f"{prefix}.hand") if "hand" in cfg else None,
             boot_bd,
+            get_float(faults, "load_cells_silent_after_s", f"{prefix}.faults", 0.0, min_value=0.0),
         )
 
 
@@ -172,6 +185,24 @@ class HilPlant:
         self.lost_s = 0.0
         self.step_us = np.zeros(1 << 16)
         self.stop = False
+        #: clamp requested (SIGUSR1 / SIGUSR2) and the angle it holds (None: free) [rad]
+        self.clamp_request = False
+        self.clamp_q_rad: float | None = None
+        self._enabled_at_s: float | None = None
+
+    def clamp_torque_Nm(self) -> float:
+        """Torque of the clamp on the link (0 while free) [Nm]."""
+        m = self.rig.model
+        if self.clamp_request and self.clamp_q_rad is None:
+            self.clamp_q_rad = float(m.q_out_rad)
+            log.info("link clamped at %.4f rad", self.clamp_q_rad)
+        elif not self.clamp_request and self.clamp_q_rad is not None:
+            self.clamp_q_rad = None
+            log.info("link released")
+        if self.clamp_q_rad is None:
+            return 0.0
+        return -CLAMP_STIFFNESS_NM_RAD * (float(m.q_out_rad) - self.clamp_q_rad) \
+            - CLAMP_DAMPING_NMS_RAD * float(m.dq_out_rad_s)
 
     def ports(self) -> dict[str, Any]:
         """The handshake line: where the daemon finds the devices."""
@@ -203,7 +234,7 @@ class HilPlant:
         """
         tau_m = self.drive.torque_command_Nm
         t = self.rig.t_s
-        self.rig.step(tau_m, self.tau_ext_Nm(t) + self.hand_torque_Nm(t, dt_s), dt_s)
+        self.rig.step(tau_m, self.tau_ext_Nm(t) + self.hand_torque_Nm(t, dt_s) + self.clamp_torque_Nm(), dt_s)
         q, dq, tau = self.rig.motor_feedback()
         self.drive.set_feedback(q, dq, tau)
         self.drive.service(now_s)
@@ -212,7 +243,19 @@ class HilPlant:
         new, q_out, dq_out = self.rig.imu_sample()
         if new:
             self.imu.emit(self.rig.t_s, q_out, dq_out)
-        self.cells.emit(self.rig.load_cells_N())
+        if not self._load_cells_silent():
+            self.cells.emit(self.rig.load_cells_N())
+
+    def _load_cells_silent(self) -> bool:
+        """True once the ``hil.faults`` load-cell loss is due."""
+        after = self.settings.load_cells_silent_after_s
+        if after <= 0.0:
+            return False
+        if self._enabled_at_s is None:
+            if self.drive.state == State402.OPERATION_ENABLED:
+                self._enabled_at_s = self.rig.t_s
+            return False
+        return self.rig.t_s - self._enabled_at_s >= after
 
     def run(self, parent_pid: int = 0) -> dict[str, Any]:
         """Pace :meth:`cycle` in real time until :attr:`stop`, or the parent is gone.
@@ -293,6 +336,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant.stop = True
 
     signal.signal(signal.SIGTERM, _on_term)
+
+    def _on_clamp(signum: int, frame: Any) -> None:
+        plant.clamp_request = signum == signal.SIGUSR1
+
+    signal.signal(signal.SIGUSR1, _on_clamp)
+    signal.signal(signal.SIGUSR2, _on_clamp)
     code = 0
     try:
         plant.rig.step(0.0, 0.0, plant.settings.period_s)   # compile the plant before READY
