@@ -109,7 +109,7 @@ def test_bad_value_is_one_plain_line(tmp_path: Path) -> None:
     res = subprocess.run([sys.executable, "-m", "capstan.tools.cli", "hil", "--duration-s", "0"],
                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert res.returncode == 2
-    assert res.stderr.strip() == "capstan hil: --duration-s must be > 0, got 0.0"
+    assert res.stderr.strip() == "capstan hil: --duration-s must be given and > 0, got 0.0"
 
 
 @pytest.mark.slow

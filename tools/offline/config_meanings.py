@@ -265,6 +265,8 @@ MEANINGS: dict[str, str] = {
     "hil.hand.settle_s": "time after grabbing the handle left out of the statistics",
     "hil.hand.breakaway_window_s": "window after each stroke onset for the breakaway peak",
     "hil.plant": "the distributed plant (models/plant/; the scenario file's plant keys)",
+    "hil.faults": "faults the simulated rig injects on its own (bring-up and fault tests)",
+    "hil.faults.load_cells_silent_after_s": "the load-cell amplifier stops sending this long after the start",
     "hil.plant.sensors": "the simulated devices: `realistic` (default: the drive's 0x606C from 1 ms count "
                          "differences in its unit, load-cell scale/zero errors with drift, gyro bias and axis "
                          "tilt, a jittered lossy command path) or `ideal` (exact signals), or a mapping "
