@@ -259,19 +259,30 @@ def _march(y0, t, u, T0, s_T, bend, age_drive, mu_theta, D, N, i_x0, i_qout, mod
                 c_old = (4.0 * y - y_prev) / 3.0
                 gam = 2.0 * h / 3.0
             z = y.copy()
+            fz = _rhs(z, tau, T0s, mth, D, N, i_x0, i_qout, modes, sc, True, J, v)
+            r = z - c_old - gam * fz
             ok = False
-            for it in range(30):
-                fz = _rhs(z, tau, T0s, mth, D, N, i_x0, i_qout, modes, sc, True, J, v)
-                r = z - c_old - gam * fz
+            for it in range(60):
                 for i in range(ny):
                     for k in range(ny):
                         Jd[i, k] = eye[i, k] - gam * J[i, k]
                 dz = np.linalg.solve(Jd, -r)
-                z += dz
                 err = 0.0
                 for i in range(ny):
                     tol = 1e-12 if i_x0 <= i < i_qout else 1e-10     # m (1 uN of tension); rad, rad/s
                     err = max(err, abs(dz[i]) / tol)
+                # backtracking on the residual's norm (the node laws have kinks)
+                r0 = np.sqrt(np.sum(r * r))
+                lam = 1.0
+                for _ in range(12):
+                    zt = z + lam * dz
+                    ft = _rhs(zt, tau, T0s, mth, D, N, i_x0, i_qout, modes, sc, True, J, v)
+                    rt = zt - c_old - gam * ft
+                    if np.sqrt(np.sum(rt * rt)) < r0 or lam < 1e-3 or err < 1.0:
+                        break
+                    lam *= 0.5
+                z = zt
+                r = rt
                 if err < 1.0:
                     ok = True
                     break
