@@ -20,7 +20,7 @@ Effects (:data:`EFFECTS`), each a physical change inside the plant or its sensor
   ``a_j`` grows towards ``0.6 min(1, |tau_m| / 2 Nm)`` with a 1 s time constant (faster the
   more load is held) and is erased by the node's own slip over 0.1 mm
   (``da/dt = (A L - a) / tau - a |v_j| / s0``, a rate-and-state ageing law);
-* ``node_drag`` -- sheath drag in each node's sliding speed, ``c2 v_j |v_j|`` (1500 N s^2/m^2: 0.4 N per node at 17 mm/s, a fifth of its Coulomb level);
+* ``node_drag`` -- sheath drag in each node's sliding speed, ``c2 v_j |v_j|`` (5000 N s^2/m^2: 1.4 N per node at 17 mm/s, about its Coulomb level);
 * ``reroute_step`` -- at mid-run the second bend is re-routed 50 % tighter (its node bends
   x 1.5 from that instant);
 * ``relaxation`` -- the pretension field relaxes by 35 % exponentially, time constant 4 s
@@ -87,7 +87,7 @@ def rig_run(effect: str, seed: int, k_out: float, b_out: float, seconds: float =
     ``settle_s`` at the first motor torque, unrecorded. Returns (table, truth)."""
     if effect not in EFFECTS:
         raise ValueError(f"unknown effect {effect!r}")
-    P = rig_plant(k_out, b_out, n_nodes, drag_c2=1500.0 if effect == "node_drag" else 0.0)
+    P = rig_plant(k_out, b_out, n_nodes, drag_c2=5000.0 if effect == "node_drag" else 0.0)
     t = np.arange(0.0, seconds, DT_S)
     u = held_multisine(t, peak_Nm, seed)
     t_pre = np.arange(-int(round(settle_s / DT_S)), 1) * DT_S

@@ -8,7 +8,7 @@ effect             physics (tests/independent_runs.py)                 the right
 =================  ==================================================  =======================
 dwell_load         node junction ageing under a held torque, erased    dwell_stiction
                    by 0.1 mm of node slip
-node_drag          c2 v|v| in every node's own sliding speed           speed_viscous
+node_drag          c2 v|v| in every node's own sliding speed (5000)           speed_viscous
 reroute_step       the second bend 50 % tighter from mid-run           a friction capacity
                                                                        over time:
                                                                        pretension_relaxation
@@ -110,9 +110,9 @@ def test_the_load_cell_gain_is_measured_as_injected() -> None:
     assert sum(abs(g - 0.06) <= 0.006 for g in got) >= RATE, got
 
 
-def main() -> None:
-    """Print every case's figures, seed by seed."""
-    for effect in ("none", *MECHANISM):
+def main(effects: list[str]) -> None:
+    """Print every case's figures, seed by seed (all cases if ``effects`` is empty)."""
+    for effect in effects or ("none", *MECHANISM):
         for s in SEEDS:
             r = closed(effect, s)
             ok = "" if effect == "none" else ("right" if right(effect, r) else "WRONG")
@@ -120,4 +120,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+    main(sys.argv[1:])
