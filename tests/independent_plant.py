@@ -38,7 +38,7 @@ where it is cheap):
 
 Integration: fixed-step BDF2 (first step backward Euler), Newton with the exact Jacobian
 (the tensions are linear in the state, the node laws are differentiated by hand), ``substeps``
-steps per sample; inputs piecewise linear between samples, exogenous parameters (pretension
+steps per sample (256 in the first interval); inputs piecewise linear between samples, exogenous parameters (pretension
 scale, bend scale, ageing drive) evaluated at the step end. The ageing state is advanced after
 each step, implicitly in itself with the step's converged node speeds (operator splitting).
 """
@@ -246,9 +246,14 @@ def _march(y0, t, u, T0, s_T, bend, age_drive, mu_theta, D, N, i_x0, i_qout, mod
     first = True
     bad = 0
     for s in range(t.shape[0] - 1):
-        h = (t[s + 1] - t[s]) / substeps
-        for m in range(substeps):
-            w1 = (m + 1.0) / substeps
+        # the first interval finely: a state built from the pretension field is not at rest
+        # (us-scale transients); what a coarse first step gets wrong there stays in the run
+        n_sub = 256 if s == 0 else substeps
+        h = (t[s + 1] - t[s]) / n_sub
+        if s == 1:
+            first = True            # the step changes: BDF2 restarts with one backward-Euler step
+        for m in range(n_sub):
+            w1 = (m + 1.0) / n_sub
             tau = u[s] + w1 * (u[s + 1] - u[s])
             T0s = T0 * (s_T[s] + w1 * (s_T[s + 1] - s_T[s]))
             mth = mu_theta * bend[s + 1] * (1.0 + a)

@@ -13,9 +13,10 @@ by fixed-step BDF2 (2 steps per 1 ms sample); it is checked against physics in
 tests/test_independent_plant.py. Here it meets the package on N = 12 nodes of a two-bend
 non-uniform routing with unequal pretensions, in the torque/testbed, motor/testbed and
 motor/link modes. The difference is the oracle's fixed step: from 2 to 8 steps per sample
-it falls 4-15x (measured RMSE at 8 steps: 5.8e-5 torque, 5.0e-5 motor, 1.2e-4 Nm link mode,
-the link's light damping carrying the phase error), hence the bound 2e-4 Nm at 8 steps.
-The closure runs use 2 steps (motor mode: 8e-5 Nm, under the 0.02 Nm sensor noise).
+it falls ~16x (second order; measured tau_out RMSE at 8 steps: 2.0e-7 torque, 8.5e-6 motor,
+1.1e-4 Nm link mode, the link's light damping carrying the phase error), so each mode is
+bounded at about twice its figures, and the fall is asserted (> 8x). The closure runs use
+2 steps (motor mode: 1.3e-4 Nm, under the 0.02 Nm sensor noise).
 """
 
 from pathlib import Path
@@ -83,8 +84,9 @@ def test_oracle_is_sensitive_to_what_an_implementation_could_get_wrong():
     assert _rmse(a, b) > 0.05
 
 
-#: the compiled oracle's BDF2 at 8 steps per sample against the package at rtol 1e-8 (docstring)
-RMSE_FAST_NM = 2e-4
+#: the compiled oracle's BDF2 at 8 steps per sample against the package at rtol 1e-8: about
+#: twice the measured RMSE of (torques [Nm], q_out [rad], fixture tensions [N]) per mode
+BOUND = {"torque": (5e-7, 6e-8, 1e-5), "motor": (2e-5, 1.5e-7, 2.5e-4), "link": (2.5e-4, 8e-7, 3e-3)}
 
 
 def _two_bend_case(mode: str) -> tuple[ip.Plant, DistributedModel]:
@@ -111,15 +113,15 @@ def test_two_bend_routing_with_motor_and_link_matches_the_compiled_oracle(mode):
     coarse, ref = ip.simulate(P, t, u, substeps=2), ip.simulate(P, t, u, substeps=8)
     assert ref.newton_failures == 0
     assert np.ptp(ref.tau_out) > 2.0 and np.ptp(ref.q_out) > 0.05      # it moves, sticks and slides
+    b_tau, b_q, b_T = BOUND[mode]
     err = _rmse(ours.tau_out_Nm, ref.tau_out)
-    assert err < RMSE_FAST_NM
-    assert _rmse(ours.tau_out_Nm, coarse.tau_out) > 2.0 * err            # the oracle's step, not the equations
-    assert _rmse(ours.tau_in_Nm, ref.tau_in) < RMSE_FAST_NM
-    assert _rmse(ours.q_out_rad, ref.q_out) < RMSE_FAST_NM / 20.0      # 1e-5 rad: 2e-4 Nm on k_out 20
-    assert _rmse(ours.fixture_tensions_N, ref.fixture) < RMSE_FAST_NM / 0.04
+    assert err < b_tau
+    assert _rmse(ours.tau_out_Nm, coarse.tau_out) > 8.0 * err            # the oracle's step, not the equations
+    assert _rmse(ours.tau_in_Nm, ref.tau_in) < b_tau
+    assert _rmse(ours.q_out_rad, ref.q_out) < b_q
+    assert _rmse(ours.fixture_tensions_N, ref.fixture) < b_T
 
 
-@pytest.mark.slow
 def test_the_two_oracles_agree_with_each_other():
     """The compiled oracle against the dense scipy one (both from the paper, different
     coordinates and integrators) on the asymmetric 4-node case above."""
@@ -129,4 +131,4 @@ def test_the_two_oracles_agree_with_each_other():
     tu, tl = pretension_field(th, 180.0, 120.0, 0.052), pretension_field(th, 110.0, 160.0, 0.052)
     dense = IndepModel(Params(th, th.copy(), tu, tl, k_out=20.0, b_out=2.0)).simulate(t, u)["tau_out"]
     fast = ip.simulate(ip.Plant(th, th.copy(), tu, tl, b_in=1e-3, k_out=20.0, b_out=2.0), t, u, substeps=8).tau_out
-    assert _rmse(fast, dense) < RMSE_FAST_NM
+    assert _rmse(fast, dense) < RMSE_NM
