@@ -21,8 +21,9 @@ Effects (:data:`EFFECTS`), each a physical change inside the plant or its sensor
   more load is held) and is erased by the node's own slip over 0.1 mm
   (``da/dt = (A L - a) / tau - a |v_j| / s0``, a rate-and-state ageing law);
 * ``node_drag`` -- sheath drag in each node's sliding speed, ``c2 v_j |v_j|`` (5000 N s^2/m^2: 1.4 N per node at 17 mm/s, about its Coulomb level);
-* ``reroute_step`` -- at mid-run the second bend is re-routed 50 % tighter (its node bends
-  x 1.5 from that instant);
+* ``reroute_step`` -- at mid-run the second bend is re-routed 50 % tighter: the bends of the
+  nodes beyond half the routing's bending (the second bend and what follows) x 1.5 from
+  that instant;
 * ``relaxation`` -- the pretension field relaxes by 35 % exponentially, time constant 4 s
   (stress relaxation: every segment scaled, not shifted);
 * ``load_cell_gain`` -- both input load cells read 6 % high (so does tau_in).
