@@ -190,7 +190,9 @@ def test_disable_of_a_drive_that_is_gone_gives_up_within_one_heartbeat_timeout(r
     with pytest.raises(DeviceLostError, match="drive 3 is gone"):
         motor.disable()
     limit_s = motor.HEARTBEAT_LOSS_PERIODS * motor.config.drive_heartbeat_period_s
-    assert time.monotonic() - t0 < limit_s + 0.1    # not 3 x 0.5 s of transition timeouts
+    # given up on the heartbeat's silence (limit_s, 150 ms), not after 3 x 0.5 s of transition timeouts: a
+    # bound between the two (the figure: tests/bench_cia402_peer.py, "disable of a drive that is gone")
+    assert limit_s < 0.5 and time.monotonic() - t0 < 1.0
 
 
 def test_orderly_close_leaves_the_drive_restartable(rig):
