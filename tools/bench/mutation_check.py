@@ -183,7 +183,7 @@ def _pytest(copy: Path, files: list[str], cache: Path, timeout_s: float) -> tupl
     except subprocess.TimeoutExpired:
         return "timeout", time.monotonic() - t0, "", []
     lines = res.stdout.strip().splitlines() or [""]
-    failed = [ln.split(" - ")[0].split(" ", 1)[1] for ln in lines if ln.startswith(("FAILED ", "ERROR "))]
+    failed = [ln.split(" - ")[0].split(" ", 1)[1] for ln in lines if ln.startswith(("FAILED tests/", "ERROR tests/"))]
     tail = "; ".join([lines[-1], *failed[:2]])
     return ("survived" if res.returncode == 0 else "killed"), time.monotonic() - t0, tail, failed
 
