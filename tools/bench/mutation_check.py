@@ -11,9 +11,10 @@ mutated module or a package module that imports it directly (``--narrow``: only 
     pytest -m "not slow" -x -q -p no:cacheprovider <those test files>
 
 with the copy first on ``PYTHONPATH`` (a ``capstan`` namespace of links to the copy's
-folders) and a fresh, empty ``NUMBA_CACHE_DIR`` per mutation: Numba's cache does not follow
-a change of a module that a cached function calls, so a shared cache could hide a mutation
-(or keep one after it is undone). A mutation is *killed* when pytest fails, *survived* when
+folders) and a fresh, empty ``NUMBA_CACHE_DIR`` per mutation of a module with Numba code:
+Numba's cache does not follow a change of a module that a cached function calls, so a shared
+cache could hide a mutation (or keep one after it is undone). Mutations of plain Python modules
+share one cache. A mutation is *killed* when pytest fails, *survived* when
 the selection passes. The unmutated copy is run first on the union of the selections (a
 failing baseline would make every mutation look killed).
 
@@ -188,6 +189,12 @@ def _pytest(copy: Path, files: list[str], cache: Path, timeout_s: float) -> tupl
     return ("survived" if res.returncode == 0 else "killed"), time.monotonic() - t0, tail, failed
 
 
+def _cache(tmp: Path, i: int, source: str) -> Path:
+    """A fresh Numba cache for a mutation of a compiled module; a shared one (compiled from unmutated
+    code) for a module without Numba code, which no cached compiled function can have inlined."""
+    return tmp / (f"cache-{i}" if "numba" in source else "cache-shared")
+
+
 def _check_target(copy: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(copy / ".mutpkg")}
     where = subprocess.run([sys.executable, "-c", "import capstan.controller as c; print(c.__file__)"],
@@ -204,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--narrow", action="store_true",
                     help="only the tests that import the mutated module (default: also those of its direct importers)")
     ap.add_argument("--timeout", type=float, default=900.0, help="per pytest run [s]")
+    ap.add_argument("--tests-at", metavar="REV", help="take tests/ from this git revision (e.g. main: the suite before a change)")
     args = ap.parse_args(argv)
     chosen = [m for m in MUTATIONS if not args.only or m.id in args.only]
     for m in chosen:
@@ -218,6 +226,10 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="capstan-mut-") as tmp:
         copy = Path(tmp) / "repo"
         _copy(copy)
+        if args.tests_at:
+            shutil.rmtree(copy / "tests")
+            tar = subprocess.run(["git", "-C", str(REPO), "archive", args.tests_at, "tests"], check=True, capture_output=True)
+            subprocess.run(["tar", "-x", "-C", str(copy)], input=tar.stdout, check=True)
         _check_target(copy)
         if not args.no_baseline:
             union = sorted({f for m in chosen for f in test_files(copy, m.path, not args.narrow)})
@@ -240,11 +252,11 @@ def main(argv: list[str] | None = None) -> int:
                 if not files:
                     status, wall, tail, failed = "survived", 0.0, "no test file imports it", []
                 else:
-                    status, wall, tail, failed = _pytest(copy, files, Path(tmp) / f"cache-{i}", args.timeout)
+                    status, wall, tail, failed = _pytest(copy, files, _cache(Path(tmp), i, orig), args.timeout)
             finally:
                 path.write_text(orig)
             if status == "killed" and failed:       # the failing test must pass unmutated, else it is a flake
-                ok = _pytest(copy, failed[:1], Path(tmp) / f"cache-{i}-check", args.timeout)[0] == "survived"
+                ok = _pytest(copy, failed[:1], _cache(Path(tmp), -1 - i, orig), args.timeout)[0] == "survived"
                 if not ok:
                     status, tail = "flaky", tail + " (fails unmutated too)"
             if status != "killed":
