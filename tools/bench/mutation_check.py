@@ -50,6 +50,8 @@ class Mutation:
     old: str
     new: str
     what: str
+    #: test files to run besides the importers (a module reached only through another one)
+    also: tuple[str, ...] = ()
 
 
 MUTATIONS: tuple[Mutation, ...] = (
@@ -72,16 +74,16 @@ MUTATIONS: tuple[Mutation, ...] = (
              "rest gate's lower edge 0.8 -> 0.5 of the band"),
     Mutation("rest-gate-debounce", "controller/law/step.py",
              "gate = g_now if st[S_FF_OUT] != 0.0 else 0.0", "gate = g_now",
-             "rest gate opens on the first sample (debounce dropped)"),
+             "rest gate opens on the first sample (debounce dropped)", ("tests/test_torque_loop.py",)),
     Mutation("integrator-clamp", "controller/law/step.py",
              "st[S_INT] = min(max(st[S_INT] + cfg[C_KI_DT] * e, -lim), lim)", "st[S_INT] = st[S_INT] + cfg[C_KI_DT] * e",
-             "integrator anti-windup clamp dropped"),
+             "integrator anti-windup clamp dropped", ("tests/test_torque_loop.py", "tests/test_integral_limit.py")),
     Mutation("lowpass-pole", "controller/law/ldo.py",
              "return math.exp(-2.0 * math.pi * cutoff_hz * dt_s)", "return math.exp(-math.pi * cutoff_hz * dt_s)",
              "first-order low-pass pole: cutoff halved (filter coefficient)"),
     Mutation("config-fault-vs-clamp", "controller/law/safety_config.py",
              "if s.tau_fault_Nm < s.tau_max_Nm:", "if s.tau_fault_Nm < 0.5 * s.tau_max_Nm:",
-             "validation: a fault limit below the clamp accepted"),
+             "validation: a fault limit below the clamp accepted", ("tests/test_safety.py",)),
     Mutation("runtime-fresh-vs-period", "controller/runtime/config.py",
              "if out.sensor_fresh_s < period", "if out.sensor_fresh_s < 0.5 * period",
              "validation: sensor_fresh_s below the period accepted"),
@@ -114,7 +116,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "pretension field: sign error in the far branch"),
     Mutation("pretension-profile", "models/distributed/params.py",
              "tens = pretension_N * np.maximum(", "tens = pretension_N * np.minimum(",
-             "distributed pretension profile: the weaker of the two ends"),
+             "distributed pretension profile: the weaker of the two ends", ("tests/test_distributed_physics.py",)),
     Mutation("lugre-stribeck", "models/transmission/lugre.py",
              "return F_c + (F_s - F_c) * math.exp(-x * x)", "return F_c + (F_s - F_c) * math.exp(-x)",
              "LuGre Stribeck curve exponent 2 -> 1"),
@@ -221,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [m for m in chosen if (REPO / m.path).read_text().count(m.old) == 1]
     if args.list:
         for m in chosen:
-            print(f"{m.id:26s} {m.path}: {m.what}\n{'':27s}{' '.join(test_files(REPO, m.path, not args.narrow)) or '(none)'}")
+            files = sorted(set(test_files(REPO, m.path, not args.narrow)) | set(m.also))
+            print(f"{m.id:26s} {m.path}: {m.what}\n{'':27s}{' '.join(files) or '(none)'}")
         return 0
     with tempfile.TemporaryDirectory(prefix="capstan-mut-") as tmp:
         copy = Path(tmp) / "repo"
@@ -246,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         for i, m in enumerate(chosen):
             path = copy / m.path
             orig = path.read_text()
-            files = test_files(copy, m.path, not args.narrow)
+            files = sorted(set(test_files(copy, m.path, not args.narrow)) | {f for f in m.also if (copy / f).exists()})
             path.write_text(orig.replace(m.old, m.new))
             try:
                 if not files:
