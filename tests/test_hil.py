@@ -105,11 +105,11 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
     # command quality: the summary's figures agree with the logged commands, and the shipped
     # loop is quiet in the delayed loop (the lock-step gains changed it by 1.15 Nm/cycle rms)
     cmd = out["command"]
-    running = rec["phase"] == 1
-    run_cmd = rec["tau_m_cmd_Nm"][running].astype(float)
+    in_run = rec["phase"] == 1
+    run_cmd = rec["tau_m_cmd_Nm"][in_run].astype(float)
     # the summary's change is taken inside each statistics window (the window of a stats row holds the
     # cycles up to and including its t_s): the changes across a window's edge are not in it
-    window = np.searchsorted(log.stats["t_s"], rec["t_s"][running], side="left")
+    window = np.searchsorted(log.stats["t_s"], rec["t_s"][in_run], side="left")
     inside = np.diff(window) == 0
     log_change = float(np.sqrt(np.mean(np.diff(run_cmd)[inside] ** 2)))
     assert cmd["cycles"] == len(run_cmd) and cmd["rate_limit_hits"] == 0
