@@ -213,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--narrow", action="store_true",
                     help="only the tests that import the mutated module (default: also those of its direct importers)")
     ap.add_argument("--timeout", type=float, default=900.0, help="per pytest run [s]")
+    ap.add_argument("--files", nargs="*", help="run exactly these test files for every chosen mutation")
     ap.add_argument("--tests-at", metavar="REV", help="take tests/ from this git revision (e.g. main: the suite before a change)")
     args = ap.parse_args(argv)
     chosen = [m for m in MUTATIONS if not args.only or m.id in args.only]
@@ -249,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         for i, m in enumerate(chosen):
             path = copy / m.path
             orig = path.read_text()
-            files = sorted(set(test_files(copy, m.path, not args.narrow)) | {f for f in m.also if (copy / f).exists()})
+            files = args.files or sorted(set(test_files(copy, m.path, not args.narrow)) | {f for f in m.also if (copy / f).exists()})
             path.write_text(orig.replace(m.old, m.new))
             try:
                 if not files:
