@@ -27,7 +27,7 @@ STANDARD = {
 }
 
 
-@pytest.mark.parametrize("t", TRANSITIONS, ids=lambda t: f"{t.number}-{t.command.name}")
+@pytest.mark.parametrize("t", TRANSITIONS, ids=lambda t: f"transition-{t.number}")
 def test_every_commanded_transition_is_the_standards(t) -> None:
     source, target, words = STANDARD[t.number]
     assert (t.source, t.target) == (source, target)
