@@ -71,11 +71,17 @@ def test_start_up_waits_for_a_drive_that_is_still_booting(rig, boot_s, caplog):
     motor.start()
     took = time.monotonic() - t0
     assert peer.boot_ups == 1 and motor.state == State402.OPERATION_ENABLED
-    assert took < boot_s + 2.0
+    # liveness only: the start-up's duration is a figure (tests/bench_cia402_peer.py); on a loaded
+    # 2-core host its SDO conversation alone has taken 6 s
+    assert took < boot_s + 30.0
     run_cycles(motor, 30, 0.3)
     assert peer.applied_torque_permille == pytest.approx(150)          # 0.3 Nm of 2 Nm arrives
-    if boot_s >= 1.5:
-        assert any("waiting for drive 3 to boot" in r.getMessage() for r in caplog.records)
+    # the wait is reported once it passes 1 s: decided on the wait the master measured (a test
+    # process held off the CPU may call start() when the drive has nearly or fully booted)
+    msgs = [r.getMessage() for r in caplog.records]
+    waited = [float(m.split("answered after ")[1].split(" s")[0]) for m in msgs if "answered after " in m]
+    if waited and waited[0] >= 1.5:
+        assert any("waiting for drive 3 to boot" in m for m in msgs), msgs
 
 
 def test_boot_timeout_is_named_and_start_can_be_called_again(rig):
@@ -190,7 +196,9 @@ def test_disable_of_a_drive_that_is_gone_gives_up_within_one_heartbeat_timeout(r
     with pytest.raises(DeviceLostError, match="drive 3 is gone"):
         motor.disable()
     limit_s = motor.HEARTBEAT_LOSS_PERIODS * motor.config.drive_heartbeat_period_s
-    assert time.monotonic() - t0 < limit_s + 0.1    # not 3 x 0.5 s of transition timeouts
+    # given up on the heartbeat's silence (limit_s, 150 ms), not after 3 x 0.5 s of transition timeouts: a
+    # bound between the two (the figure: tests/bench_cia402_peer.py, "disable of a drive that is gone")
+    assert limit_s < 0.5 and time.monotonic() - t0 < 1.0
 
 
 def test_orderly_close_leaves_the_drive_restartable(rig):

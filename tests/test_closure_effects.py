@@ -22,10 +22,13 @@ frequencies, short holds):
 * sensor_latency (IMU velocity 12 ms late): a time shift is invisible while the joint
   rests. On the default runs the closure finds the 12 ms and reaches 0.0469 Nm, 29.98 %
   below the baseline's 0.0670 Nm, where the same runs without the effect give 0.0470 Nm
-  (``test_latency_on_slow_runs_reaches_the_clean_floor``): 30 % there would need a
-  prediction better than that of the effect-free plant.
+  (seed 1): 30 % there would need a prediction better than that of the effect-free plant.
+  So on the default runs its bar is the clean floor, not 30 %, and it is checked on five
+  seeds as a rate (``test_latency_on_slow_runs_reaches_the_clean_floor``); the 30 % bar is
+  checked on the fast runs.
 
-The clean runs are checked on both excitations.
+The clean runs are checked on both excitations; on the default one over the same five seeds,
+as a rate (the data are noisy: a seed is a draw, not a choice).
 """
 
 from __future__ import annotations
@@ -104,14 +107,30 @@ def test_uncatalogued_effect_is_described_by_its_signal() -> None:
     assert res.trace[0]["signal"] == "position"
 
 
-@pytest.mark.parametrize("seed, design", [(1, MULTISINE_HOLDS), (7, MULTISINE_HOLDS), (1, FAST_MULTISINE)])
-def test_clean_runs_select_nothing(seed: int, design: ExcitationDesign) -> None:
+#: the excitation seeds of the rate tests, all kept (training seed s, held-out s + 100)
+SEEDS = (1, 2, 3, 4, 5)
+#: how many of the five must meet the bar
+RATE = 4
+
+
+def _clean_problems(seed: int, design: ExcitationDesign) -> list:
     res = run_closure("none", seed=seed, design=design)
-    for target, r in res.targets.items():
-        assert r.selected == [], (target, [(c.effect, c.improvement, c.ci_low) for c in r.selected])
-        assert r.rmse_after_Nm == r.rmse_before_Nm
+    out = [(t.name, [(c.effect, round(c.improvement, 4)) for c in r.selected]) for t, r in res.targets.items()
+           if r.selected or r.rmse_after_Nm != r.rmse_before_Nm]
     # the baseline alone is already at the noise floor of the torque sensor (0.02 Nm)
-    assert res.targets[Target.TAU_OUT].rmse_before_Nm < 3 * 0.02 * np.sqrt(2)
+    if not res.targets[Target.TAU_OUT].rmse_before_Nm < 3 * 0.02 * np.sqrt(2):
+        out.append(("baseline", res.targets[Target.TAU_OUT].rmse_before_Nm))
+    return out
+
+
+def test_clean_runs_select_nothing_on_the_fast_runs() -> None:
+    assert _clean_problems(1, FAST_MULTISINE) == []
+
+
+def test_clean_runs_select_nothing_at_the_stated_rate() -> None:
+    """Nothing selected and the baseline at the noise floor on >= 4 of 5 seeds of the default runs."""
+    problems = {s: _clean_problems(s, MULTISINE_HOLDS) for s in SEEDS}
+    assert sum(not p for p in problems.values()) >= RATE, problems
 
 
 def test_speed_viscous_recovers_the_injected_drag() -> None:
@@ -141,15 +160,33 @@ def test_latency_finds_the_injected_lag() -> None:
     assert first.shape["lag_s"] == pytest.approx(0.012, abs=1e-6)    # 12 samples at 1 kHz
 
 
-def test_latency_on_slow_runs_reaches_the_clean_floor() -> None:
-    """On the slow, hold-heavy runs the latency is still found and corrected: the
-    prediction reaches that of the same runs without the effect (the same excitation,
-    plant trajectory and noise, only the velocity channel not delayed)."""
-    res = run_closure("sensor_latency", seed=1, design=MULTISINE_HOLDS)
-    clean = run_closure("none", seed=1, design=MULTISINE_HOLDS)
+def _latency_on_slow_runs(seed: int, exact: bool) -> list:
+    res = run_closure("sensor_latency", seed=seed, design=MULTISINE_HOLDS)
+    clean = run_closure("none", seed=seed, design=MULTISINE_HOLDS)
     r = res.targets[Target.TAU_OUT]
-    assert [c.effect for c in r.selected] == ["sensor_latency"]
-    assert r.selected[0].shape == {"channel": "dq_out", "lag_s": pytest.approx(0.012, abs=1e-6)}
     floor = clean.targets[Target.TAU_OUT].rmse_before_Nm
-    assert r.rmse_before_Nm > 1.3 * floor
-    assert r.rmse_after_Nm < 1.005 * floor
+    out = []
+    if [c.effect for c in r.selected] != ["sensor_latency"] or r.selected[0].shape["channel"] != "dq_out" \
+            or not r.rmse_before_Nm > 1.3 * floor:
+        out.append(([(c.effect, c.shape) for c in r.selected], r.rmse_before_Nm, floor))
+    elif exact and (r.selected[0].shape["lag_s"] != pytest.approx(0.012, abs=1e-6) or not r.rmse_after_Nm < 1.005 * floor):
+        out.append((r.selected[0].shape["lag_s"], r.rmse_after_Nm / floor))
+    return out
+
+
+def test_latency_on_slow_runs_is_traced_at_the_stated_rate() -> None:
+    """On the slow, hold-heavy runs (baseline >= 30 % above the effect-free floor) the late velocity
+    channel is what the closure selects, alone, on >= 4 of 5 seeds (measured 5 of 5, 2026-11-28)."""
+    problems = {s: _latency_on_slow_runs(s, exact=False) for s in SEEDS}
+    assert sum(not p for p in problems.values()) >= RATE, problems
+
+
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-28 on seeds 1-5: lag 12/12/13/12/13 ms, after / clean floor "
+                                       "0.997/1.004/0.998/1.007/1.017: the bar (12 ms and within 0.5 %) met on 2 of 5")
+def test_latency_on_slow_runs_reaches_the_clean_floor() -> None:
+    """The latency found exactly (12 ms) and the prediction at that of the same runs without the effect (the
+    same excitation, plant trajectory and noise, only the velocity channel not delayed) within 0.5 %, on >= 4
+    of 5 seeds, all kept. Seed 1 alone, as this test used to run, meets it; seeds 3-5 miss by one sample of
+    lag or 0.7-1.7 % of the floor."""
+    problems = {s: _latency_on_slow_runs(s, exact=True) for s in SEEDS}
+    assert sum(not p for p in problems.values()) >= RATE, problems

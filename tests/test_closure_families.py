@@ -14,7 +14,9 @@ and three the catalogue does not have:
 * direction-dependent sheath friction (node friction x 1.3 while dq_out > 0).
 
 Clean runs: baseline held-out RMSE <= 0.05 Nm and nothing selected. Each effect: the
-first selected explanation depends on the injected mechanism's signal, and the held-out
+first selected explanation is the injected mechanism (the candidate that can express it:
+:data:`MECHANISM`; an explanation that merely shares its signal, e.g. friction over the
+output angle for a gain over the input pulley's angle, does not pass), and the held-out
 RMSE falls by >= 30 %. Effects the closure does not yet meet that bar on are marked
 ``xfail(strict=True)`` with the measured figures, so a fix shows up as an XPASS.
 """
@@ -64,13 +66,33 @@ SIGNAL = {
     "bending_with_angle": {"position"},
     "pretension_creep": {"time"},
     "late_tau_out": {"latency"},
-    "eccentric_input": {"position", "q_in"},
+    "eccentric_input": {"q_in"},
     "load_cell_gain": {"load"},
     "direction_asymmetry": {"velocity"},
 }
 
+#: injected effect -> the candidates that express its mechanism (catalogued form or empirical curve):
+#: friction growing with the joint angle; pretension falling with time; a late channel; a drive gain
+#: over the input pulley's angle; a constant drive gain; friction that differs with the direction
+#: (an even function of the velocity: the catalogue's odd drag cannot express it)
+MECHANISM = {
+    "bending_with_angle": {"position_friction", "empirical:position"},
+    "pretension_creep": {"pretension_relaxation", "empirical:time"},
+    "late_tau_out": {"sensor_latency"},
+    "eccentric_input": {"empirical:q_in"},
+    "load_cell_gain": {"drive_gain"},
+    "direction_asymmetry": {"empirical:velocity"},
+}
+
 #: measured shortfalls (see the module docstring)
-SHORT: dict[str, str] = {}
+SHORT: dict[str, str] = {
+    # README "Closing the loop" table (seed pair 1/2): position_friction first, 0.082 -> 0.049 Nm (-40 %); the
+    # mechanism's own candidate, empirical:q_in (the drive gain over q_in), scored 28 % against 26 % and lost
+    # to the catalogue-first rule (0.26 >= 0.7 x 0.28). Friction over the output angle is not a gain over the
+    # input pulley's angle: until the closure tells them apart this case falls short.
+    "eccentric_input": "position_friction (friction over q_out) selected before empirical:q_in, the eccentric "
+                       "pulley's gain over q_in (26 % vs 28 %, catalogue first at 0.7)",
+}
 
 
 def close_runs(effect: str) -> ClosureResult:
@@ -103,6 +125,7 @@ def test_injected_effect_is_traced_to_its_signal_and_cuts_heldout_error(effect: 
     res = run(effect)
     r = res.targets[Target.TAU_OUT]
     assert r.selected, f"{effect}: nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
+    assert r.selected[0].effect in MECHANISM[effect], [(c.effect, c.depends_on) for c in r.selected]
     assert set(r.selected[0].depends_on) & SIGNAL[effect], [(c.effect, c.depends_on) for c in r.selected]
     assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
 

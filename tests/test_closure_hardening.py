@@ -22,12 +22,13 @@ cubic is at most ``0.148 (d / D0)^2`` of the tangent stiffness. So:
   held-out RMSE by >= 30 %, and land near the values the cable maps to: ``c_node = 4 c r^2 /
   (1 + 3 c D0^2)`` (within 25 %: the eq-23 field's D0 varies along the sheath) and ``beta`` in
   its physical range ``[3, 9]``;
-  Both on the excitation seeds 1 / 2 and 3 / 4;
+  on five excitation seed pairs (1 / 2 ... 9 / 10, all kept), on >= 4 of 5;
 * the same two cases on the long-run path (windows; the simulation restarted inside a window
   from the node the measured tau_out sets, the friction holding it);
-* clean two-angle runs of the same pretension (seeds 1 / 2): baseline <= 0.05 Nm and nothing
-  selected. (On seeds 3 / 4 the clean two-angle baseline is 0.052 Nm and pretension_relaxation is
-  selected: a time-like residual of the two-angle form on 15 s runs, not this effect.)
+* clean two-angle runs of the same pretension on the same five seed pairs: baseline <= 0.05 Nm
+  and nothing selected on >= 4 of 5. (On seeds 3 / 4 the clean two-angle baseline has been
+  0.052 Nm with pretension_relaxation selected: a time-like residual of the two-angle form on
+  15 s runs, not this effect; a seed is a draw, so it stays in and the bar is a rate.)
 """
 
 from __future__ import annotations
@@ -52,9 +53,19 @@ SECONDS = 15.0
 CASES = {
     "angles_clean": ("angles", 0.0, 80.0, 6.0, (1, 2)),
     "angles_hardening": ("angles", 3e5, 80.0, 8.0, (1, 2)),
-    "angles_hardening_b": ("angles", 3e5, 80.0, 8.0, (3, 4)),
     "testbed_hardening": ("testbed", 3e5, 150.0, 6.0, (1, 2)),
 }
+#: the excitation seed pairs of the rate tests (training, held-out), all kept, and how many must pass
+PAIRS = ((1, 2), (3, 4), (5, 6), (7, 8), (9, 10))
+RATE = 4
+for _k, _pair in enumerate(PAIRS[1:], start=2):
+    CASES[f"angles_clean_{_k}"] = CASES["angles_clean"][:4] + (_pair,)
+    CASES[f"angles_hardening_{_k}"] = CASES["angles_hardening"][:4] + (_pair,)
+
+
+def _seeded(case: str) -> list[str]:
+    """The case on every seed pair of :data:`PAIRS`."""
+    return [case] + [f"{case}_{k}" for k in range(2, len(PAIRS) + 1)]
 
 
 @lru_cache(maxsize=None)
@@ -68,14 +79,24 @@ def run(case: str) -> ClosureResult:
     return close(sig.take(sig.run_id == 0), sig.take(sig.run_id == 1))
 
 
-@pytest.mark.parametrize("case", ["angles_clean", "testbed_hardening"])
-def test_clean_or_immaterial_baseline_at_the_floor_and_nothing_selected(case: str) -> None:
+def _clean_problems(case: str) -> list:
     res = run(case)
     r = res.targets[Target.TAU_OUT]
     assert res.dynamic is not None
     assert res.dynamic.fit.spec.form.name == CASES[case][0].upper()
-    assert r.rmse_before_Nm <= 0.05
-    assert r.selected == [], [(c.effect, c.improvement, c.ci_low) for c in r.selected]
+    out = [(c.effect, round(c.improvement, 4)) for c in r.selected]
+    if not r.rmse_before_Nm <= 0.05:
+        out.append(("baseline", r.rmse_before_Nm))
+    return out
+
+
+def test_immaterial_testbed_baseline_at_the_floor_and_nothing_selected() -> None:
+    assert _clean_problems("testbed_hardening") == []
+
+
+def test_clean_two_angle_runs_select_nothing_at_the_stated_rate() -> None:
+    problems = {case: _clean_problems(case) for case in _seeded("angles_clean")}
+    assert sum(not p for p in problems.values()) >= RATE, problems
 
 
 def test_two_angle_form_offers_the_stiffening_and_the_testbed_does_not() -> None:
@@ -102,17 +123,27 @@ def _c_node_of_the_cable(c: float, T0: float) -> float:
     return 4.0 * c * 0.04 ** 2 / (1.0 + 3.0 * c * D0 * D0)
 
 
-@pytest.mark.parametrize("case", ["angles_hardening", "angles_hardening_b"])
-def test_hardening_traced_to_deflection_and_cuts_heldout_error(case: str) -> None:
+def _hardening_problems(case: str) -> list:
     r = run(case).targets[Target.TAU_OUT]
-    assert r.selected, f"nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
+    if not r.selected:
+        return [f"nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"]
     first = r.selected[0]
-    assert first.effect == "strain_stiffening" and "deflection" in first.depends_on, \
-        [(c.effect, c.depends_on) for c in r.selected]
-    assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
+    if not (first.effect == "strain_stiffening" and "deflection" in first.depends_on):
+        return [(c.effect, c.depends_on) for c in r.selected]
+    out = []
+    if not 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30:
+        out.append((r.rmse_before_Nm, r.rmse_after_Nm))
     _, c, T0, _, _ = CASES[case]
-    assert first.params["c_node_1_rad2"] == pytest.approx(_c_node_of_the_cable(c, T0), rel=0.25)
-    assert 3.0 <= first.params["beta"] <= 9.0 and first.params["beta_plausible"]
+    if first.params["c_node_1_rad2"] != pytest.approx(_c_node_of_the_cable(c, T0), rel=0.25):
+        out.append(("c_node", first.params["c_node_1_rad2"], _c_node_of_the_cable(c, T0)))
+    if not (3.0 <= first.params["beta"] <= 9.0 and first.params["beta_plausible"]):
+        out.append(("beta", first.params["beta"]))
+    return out
+
+
+def test_hardening_traced_to_deflection_and_cuts_heldout_error_at_the_stated_rate() -> None:
+    problems = {case: _hardening_problems(case) for case in _seeded("angles_hardening")}
+    assert sum(not p for p in problems.values()) >= RATE, problems
 
 
 def test_hardening_on_the_long_run_path(long_path: None) -> None:

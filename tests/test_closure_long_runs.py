@@ -20,7 +20,7 @@ from capstan.models.closure import windows
 from capstan.models.closure.effects import Target
 from capstan.models.closure.pipeline import ClosureResult
 
-from test_closure_families import SIGNAL, close_runs
+from test_closure_families import MECHANISM, SIGNAL, close_runs
 
 pytestmark = pytest.mark.slow
 
@@ -52,6 +52,8 @@ def test_injected_effects_on_the_long_path(long_path: None, effect: str) -> None
     res = _close(effect)
     r = res.targets[Target.TAU_OUT]
     assert r.selected, f"{effect}: nothing selected (baseline {r.rmse_before_Nm:.4f} Nm)"
+    # the mechanism, not just its signal (the load cell's gain as drive_gain, not an empirical load curve)
+    assert r.selected[0].effect in MECHANISM[effect], [(c.effect, c.depends_on) for c in r.selected]
     assert set(r.selected[0].depends_on) & SIGNAL[effect], [(c.effect, c.depends_on) for c in r.selected]
     assert 1.0 - r.rmse_after_Nm / r.rmse_before_Nm >= 0.30, (r.rmse_before_Nm, r.rmse_after_Nm)
     # the selected ones were scored on every held-out sample

@@ -44,6 +44,7 @@ def test_defaults_and_relative_log_dir(tmp_path: Path) -> None:
 @pytest.mark.parametrize("patch, key, reason", [
     ({"loop": {"period_s": 0}}, "loop.period_s", ">= 0.0001"),
     ({"loop": {"busy_tail_s": 0.002}}, "loop.busy_tail_s", "shorter than period_s"),
+    ({"loop": {"sensor_fresh_s": 0.0009}}, "loop.sensor_fresh_s", ">= period_s"),     # just below 1 ms
     ({"loop": {"overrun_streak_fault": 0}}, "loop.overrun_streak_fault", ">= 1"),
     ({"loop": {"limits": {"q_out_min_rad": 1.0, "q_out_max_rad": 0.5}}}, "loop.limits.q_out_max_rad", "> q_out_min"),
     ({"loop": {"limits": {"tension_max": 3}}}, "loop.limits.tension_max", "unknown key"),
@@ -61,6 +62,12 @@ def test_bad_values_name_key_and_reason(patch: dict, key: str, reason: str) -> N
         DaemonConfig.from_mapping(cfg)
     assert ei.value.key == key
     assert reason in ei.value.reason
+
+
+def test_sensor_freshness_of_one_period_is_accepted() -> None:
+    cfg = base()
+    cfg.update({"loop": {"period_s": 0.002, "sensor_fresh_s": 0.002}})
+    assert DaemonConfig.from_mapping(cfg).loop.sensor_fresh_s == 0.002
 
 
 def test_missing_section_is_named() -> None:

@@ -57,7 +57,9 @@ def test_killed_rig_is_device_loss_with_exit_code_4(tmp_path: Path) -> None:
     # the disable gave up within one heartbeat timeout (3 x 10 ms) of trying, not after 3 x 0.5 s:
     # measured as the age of the drive's last heartbeat when the master gave up
     age_ms, window_ms = map(int, re.search(r"no heartbeat for (\d+) ms, none during (\d+) ms", fault).groups())
-    assert window_ms == 30 and age_ms < 200, fault
+    # the window is the rule (3 x 10 ms); the age is bounded for liveness only, below the 1.5 s the
+    # transition timeouts would have taken (a loaded host delays it, the rule does not change)
+    assert window_ms == 30 and 30 <= age_ms < 1000, fault
     with open(summary["log_path"], "rb") as fh:
         events = [json.loads(m.data) for _, ch, m in make_reader(fh).iter_messages(topics=["/capstan/events"])]
     faults = [e for e in events if "DEVICE_LOST" in json.dumps(e)]

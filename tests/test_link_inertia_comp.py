@@ -44,17 +44,41 @@ def test_the_analysis_link_inertia_path_is_the_steps():
     assert abs(h_lm[at[0]]) / (2 * np.pi * f[at[0]]) > 3.0 * abs(h_lm[at[1]]) / (2 * np.pi * f[at[1]])
 
 
+def test_the_high_pass_of_the_band_pass_is_in_the_steps_path():
+    """The band-pass's high-pass (link_inertia_highpass_hz 0.3) against the same compensation with it at
+    0.01 Hz (the low-pass alone in the strokes' band): everything else in the two steps is the same, so
+    the ratio of what the compensation adds to the command is the ratio of the two first-order high-passes,
+    |HP_0.3(f)| / |HP_0.01(f)|: 0.32 at 0.1 Hz, 0.96 at 1 Hz, within 2 % (the discrete filter against the
+    analogue one, f << 1 kHz). A band-pass that lost its high-pass gives 1 at both."""
+    def added(hp_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        f, h_on = _pulse_response(_linear({**LINEAR_JLC, "link_inertia_highpass_hz": hp_hz}), _link_pulse)
+        return f, h_on
+    f, h_bp = added(F_HP)
+    _, h_lp = added(0.01)
+    _, h_off = _pulse_response(_linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": 0.0}), _link_pulse)
+
+    def hp(x: float, fc: float) -> float:
+        return (x / fc) / np.sqrt(1.0 + (x / fc) ** 2)
+    for x in (0.1, 1.0):
+        k = int(np.argmin(np.abs(f - x)))
+        want = hp(f[k], F_HP) / hp(f[k], 0.01)
+        got = abs(h_bp[k] - h_off[k]) / abs(h_lp[k] - h_off[k])
+        assert got == pytest.approx(want, rel=0.02), (x, got, want)
+
+
 def test_the_link_feels_less_of_itself():
     """A 1 Hz torque on the free link (slip, K_c 240, J_m 0.73), the compiled step with both load-cell pairs
     fed and the IMU at 400 Hz: the inertia the link feels, |tau| / |link acceleration|, drops by the
-    compensated inertia: J_lc x |A_l(1 Hz)| (0.91 for the band-pass) within 35 %, and it stays above the
-    link's own inertia less J_lc (the compensation takes what it says, not more)."""
+    compensated inertia: J_lc x |A_l(1 Hz)| (0.91 for the band-pass; measured 1.044 x that, 2026-11) within
+    10 %, and it stays above the link's own inertia less J_lc (the compensation takes what it says, not more).
+    At 1 Hz the band-pass's high-pass (0.3 Hz) takes only 4 %: the shape is checked on the step's path, in
+    :func:`test_the_high_pass_of_the_band_pass_is_in_the_steps_path`."""
     p = PlantPoint(240.0, 0.73, 0.5, slip=True, link_stiffness_Nm_rad=0.945)
     f = 1.0
     j0 = felt_inertia(_linear({**LINEAR_JLC, "link_inertia_comp_kg_m2": 0.0}), p, f)
     j1 = felt_inertia(_linear(LINEAR_JLC), p, f)
     gain = 1.0 / np.sqrt(1.0 + (f / F_LP) ** 2) * (f / F_HP) / np.sqrt(1.0 + (f / F_HP) ** 2)
-    assert (j0 - j1) == pytest.approx(J_LC * gain, rel=0.35), (j0, j1)
+    assert (j0 - j1) == pytest.approx(J_LC * gain, rel=0.10), (j0, j1)
     assert j1 > p.link_inertia_kg_m2 - J_LC
 
 

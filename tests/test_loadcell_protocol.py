@@ -20,6 +20,7 @@ def test_frame_bytes_exact() -> None:
 def test_parse_frame_rejects() -> None:
     good = build_frame((0.1, 0.2, 0.3, 0.4))
     assert parse_frame(good[:-1]) is None
+    assert parse_frame(good + b"\x00") is None and parse_frame(good + good) is None  # exactly one frame
     assert parse_frame(good[:-1] + b"\x54") is None  # end byte
     assert parse_frame(b"\xab" + good[1:]) is None  # start byte
     assert parse_frame(good[:17] + bytes(((good[17] + 1) & 0xFF,)) + good[18:]) is None

