@@ -72,10 +72,15 @@ def test_cli_parser_has_both_subcommands():
 
 
 class _RecordingRig:
-    """Stands in for the rig: records the torque applied in each step."""
+    """Stands in for the rig (ideal devices: every command takes exactly the loop's delay):
+    records the torque applied in each step."""
 
     def __init__(self) -> None:
         self.applied: list[float] = []
+
+    def command_path(self, delay_cycles: int):
+        from capstan.models.plant.command_path import CommandPath, CommandTiming
+        return CommandPath(CommandTiming.ideal(), delay_cycles)
 
     def step(self, tau_m_Nm: float, tau_ext_Nm: float, dt_s: float) -> None:
         self.applied.append(tau_m_Nm)

@@ -14,6 +14,9 @@ LINK_PLANT = {
     "pretension": {"T0_N": 150.0},
     "input": {"mode": "motor"},
     "output": {"mode": "link"},
+    # physics and noise specs against the true state: the exact devices (the realistic ones
+    # are checked against their own specs in test_sim_sensors.py)
+    "sensors": "ideal",
 }
 
 

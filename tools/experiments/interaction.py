@@ -3,7 +3,10 @@
 Plant: :class:`capstan.models.plant.rig.SimulatedRig` with the motor input (J_m = 0.73 kg m^2, the
 distributed transmission) and the instrumented link (bar 500x20x20 mm + 0.5 kg tip mass,
 gravity). Sensors as the rig gives them: four noisy load cells every cycle, the IMU at
-400 Hz (angle and gyro noise), motor feedback.
+400 Hz (angle and gyro noise), motor feedback — on realistic devices by default
+(:mod:`capstan.models.plant.sensors`: the drive's velocity as the vendor forms it, load-cell
+calibration errors and drift, gyro bias and misalignment, a jittered and lossy command path);
+``devices=DeviceSettings.ideal()`` gives the exact devices.
 
 Human: an arm-like impedance grabbing the link handle and pulling it toward a reference
 motion (back-and-forth with rests)::
@@ -30,7 +33,9 @@ from capstan.controller.law.config import ControllerConfig
 from capstan.controller.law.core import Controller
 from capstan.models.plant.config import plant_from_mapping
 from capstan.models.common.errors import OperatingRangeError
+from capstan.controller.runtime.command_quality import CommandQuality
 from capstan.models.plant.rig import SensorNoise, SimulatedRig
+from capstan.models.plant.sensors import DeviceSettings
 
 
 @dataclass(frozen=True)
@@ -169,7 +174,10 @@ class LockStep:
     idealisation); with ``delay_cycles = d`` it reaches the plant ``d`` cycles later, as in
     the daemon's loop (RPDO, SYNC, drive update: ``controller.stability.io_delay_cycles``,
     checked against a HIL log by ``capstan experiment loop --log``). The IMU delivers at
-    its own rate (400 Hz, held in between) in both.
+    its own rate (400 Hz, held in between) in both. The command travels the rig's command
+    path (:meth:`SimulatedRig.command_path`): on realistic devices a command now and then
+    arrives a cycle early or late, or not at all (the motor holds the previous one); on
+    ideal devices every command takes exactly ``delay_cycles``.
     """
 
     def __init__(self, ctl: Controller, rig: SimulatedRig, delay_cycles: int = 0) -> None:
@@ -177,7 +185,8 @@ class LockStep:
         self.rig = rig
         self._imu_t_s = 0.0
         self._cycle = 0
-        self._pending = [0.0] * max(0, int(delay_cycles))
+        #: the command's way to the motor (counts of lost and jittered commands)
+        self.command_path = rig.command_path(max(0, int(delay_cycles)))
 
     def write_measurements(self, tau_out_ref_Nm: float = 0.0) -> None:
         """Fill the record's measurement fields from the rig's sensors at the rig time."""
@@ -204,34 +213,36 @@ class LockStep:
         """One lock-step cycle; returns the motor command [Nm]."""
         self.write_measurements(tau_out_ref_Nm)
         tau_m = self.ctl.step()
-        applied = tau_m
-        if self._pending:
-            self._pending.append(tau_m)
-            applied = self._pending.pop(0)
-        self.rig.step(applied, tau_ext_Nm, dt_s)
+        self.rig.step(self.command_path.push(tau_m), tau_ext_Nm, dt_s)
         return tau_m
 
 
 def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
                     noise: SensorNoise | None = None, settle_s: float = 0.5,
-                    delay_cycles: int = 0, imu_rate_hz: float = 400.0) -> dict[str, float]:
+                    delay_cycles: int = 0, imu_rate_hz: float = 400.0,
+                    devices: DeviceSettings | None = None) -> dict[str, float]:
     """Run one controller on one condition; return the metrics.
 
     :param delay_cycles: command delay of the loop (0: lock-step idealisation).
     :param imu_rate_hz: the rig's IMU output rate [Hz] (the daemon's Xsens: 400 Hz).
+    :param devices: the rig's device models (None: realistic).
 
     :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
         ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage),
         ``faulted`` (1.0 if the safety stage latched; the run stops there) and mean |tau_h| per
         phase of the hand's reference (:func:`phase_means`): ``mean_abs_tau_h_accel_Nm``,
-        ``..._decel_Nm``, ``..._rest_Nm``.
+        ``..._decel_Nm``, ``..._rest_Nm``; the command's quality after ``settle_s``
+        (:mod:`capstan.controller.runtime.command_quality`): ``cmd_change_rms_Nm`` (per cycle),
+        ``rate_limit_hits`` (cycles at the safety stage's rate clamp), ``max_abs_cmd_Nm``;
+        ``commands_lost`` and ``commands_jittered`` on the command path.
     :raises ConfigError: on a bad controller mapping; ``OperatingRangeError`` on cable slack.
     """
     rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
-                       seed=seed, imu_rate_hz=imu_rate_hz)
+                       seed=seed, imu_rate_hz=imu_rate_hz, devices=devices)
     ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
     ls = LockStep(ctl, rig, delay_cycles)
     n = int(round(duration_s / 1e-3))
+    cmd = np.zeros(n)
     tau_h = np.zeros(n)
     err = np.zeros(n)
     raw = np.zeros(n)
@@ -242,7 +253,7 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
         th = human.torque_Nm(rig.t_s, model.q_out_rad, model.dq_out_rad_s)
         tau_h[k] = th
         dq_ref[k] = human.reference(rig.t_s)[1]
-        ls.cycle(th)
+        cmd[k] = ls.cycle(th)
         err[k] = ctl.record[0]["err_Nm"]
         raw[k] = ctl.record[0]["tau_m_raw_Nm"]
         if ctl.faulted:
@@ -257,7 +268,22 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
         "max_abs_tau_m_raw_Nm": float(np.max(np.abs(raw))),
         "faulted": 1.0 if ctl.faulted else 0.0,
         **phase_means(tau_h[k0:], dq_ref[k0:]),
+        **command_figures(cmd[k0:k + 1], ctl.cfg.dt_s, ctl.cfg.safety.dtau_max_Nm_s * ctl.cfg.dt_s),
+        "commands_lost": float(ls.command_path.lost), "commands_jittered": float(ls.command_path.jittered),
     }
+
+
+def command_figures(cmd_Nm: np.ndarray, dt_s: float, rate_step_Nm: float) -> dict[str, float]:
+    """``cmd_change_rms_Nm``, ``rate_limit_hits`` and ``max_abs_cmd_Nm`` of a command series,
+    counted as the daemon counts them (:class:`CommandQuality`)."""
+    if len(cmd_Nm) == 0:
+        return {"cmd_change_rms_Nm": math.nan, "rate_limit_hits": 0.0, "max_abs_cmd_Nm": math.nan}
+    cq = CommandQuality(len(cmd_Nm), dt_s, rate_step_Nm)
+    for c in cmd_Nm:
+        cq.add(float(c), 0.0)
+    r = cq.take_window()
+    return {"cmd_change_rms_Nm": r.cmd_change_rms_Nm, "rate_limit_hits": float(r.rate_limit_hits),
+            "max_abs_cmd_Nm": float(np.max(np.abs(cmd_Nm)))}
 
 
 def phase_means(tau_h_Nm: np.ndarray, dq_ref_rad_s: np.ndarray) -> dict[str, float]:

@@ -14,11 +14,16 @@ Started by ``capstan hil`` (``python -m capstan.tools.hil.plant --config hil.yam
   hand ``hil.hand`` (:mod:`capstan.tools.hil.hand`: an arm impedance moving the link with rests,
   holding the handle while the drive is enabled) whose interaction torque is measured;
 * the plant may carry effects the controller's model lacks (``hil.plant.effects``,
-  :mod:`capstan.models.plant.rig_effects`).
+  :mod:`capstan.models.plant.rig_effects`);
+* the devices report what real ones report (``hil.plant.sensors``,
+  :mod:`capstan.models.plant.sensors`; realistic unless ``sensors: ideal``): the drive's
+  position and velocity as the drive forms them (``SimulatedRig.motor_feedback``), the IMU
+  with bias and misalignment, the load cells with calibration errors and drift.
 
 Protocol with the parent on stdout: one JSON line once ready
 ``{"channel", "imu_port", "load_cells_port", "pid"}``; one JSON line of statistics at the
-end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects).
+end (with ``hand``: the interaction-torque statistics, ``effects``: the injected effects,
+``devices``: the device models).
 It stops on SIGTERM, :data:`ORPHAN_GRACE_S` after its parent dies (a real rig outlives a
 killed daemon: the drive's own heartbeat watch must get to act first), or on a plant error
 (cable slack, integrator failure: exit code 4). SIGINT is ignored — the daemon must ramp down first.
@@ -250,7 +255,8 @@ class HilPlant:
                 "cpu_s": process_cpu_s() - cpu0,
                 "drive_faults": [hex(c) for c in self.drive.faults_raised],
                 "hand": self.hand.stats() if self.hand is not None else None,
-                "effects": self.rig.effects.describe()}
+                "effects": self.rig.effects.describe(),
+                "devices": self.rig.devices.label}
 
     def close(self) -> None:
         """Release the bus and the ptys."""
