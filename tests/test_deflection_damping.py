@@ -50,7 +50,8 @@ def test_the_analysis_filters_are_the_steps():
     """The loop model's paths reproduce the compiled step to rounding: the motor velocity
     enters as -b dq_m; the link's as b H_l (with the IMU running every cycle here, H_l without the
     one cycle that stands for the 400 Hz hold); the reference as b H_r on top of the reference."""
-    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 40.0, "deflection_reference_cutoff_hz": 3.0})
+    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 40.0, "deflection_reference_cutoff_hz": 3.0,
+                   "motor_velocity": "drive"})     # the drive's velocity in: the observer's paths are test_motor_velocity's
     b = 100.0
     x = np.zeros(300)
     x[5] = 1e-2
@@ -148,7 +149,7 @@ def test_no_braking_in_a_steady_motion_and_nothing_at_rest():
             out[k] = ctl.step()
         return out
     shipped = {"kp": 1.25, "deflection_damping_Nms_rad": 100.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.0,
-               "inertia_comp_kg_m2": 0.0}
+               "inertia_comp_kg_m2": 0.0, "motor_velocity": "drive"}     # a quantised 0x606C read as it is
     off = {**shipped, "deflection_damping_Nms_rad": 0.0}
     steady = (lambda k: 0.4, lambda k: 0.4)
     assert np.max(np.abs(run(shipped, *steady) - run(off, *steady))[500:]) < 1e-9

@@ -45,7 +45,7 @@ def test_the_analysis_paths_are_the_steps():
     jc, b = 0.4, 100.0
     cfg = _linear({**MOTOR_LINEAR, "kp": 0.0, "inertia_comp_kg_m2": jc, "deflection_damping_Nms_rad": b,
                    "acceleration_cutoff_hz": 7.0, "deflection_link_cutoff_hz": 40.0,
-                   "deflection_link_lag_compensation": True})
+                   "deflection_link_lag_compensation": True, "motor_velocity": "drive"})
     x = np.zeros(400)
     x[5] = 1e-2
     am = acceleration_filter(cfg)
@@ -136,7 +136,7 @@ def test_faded_at_rest_and_in_at_onset_without_a_step():
     the motor's J_c adds nothing: the command is bit-identical to J_c 0. Once the joint moves, J_c x
     the motor's acceleration reaches the command, faded in by the 5 Hz gate (no step of J_c x a)."""
     def run(jc: float, dq_m, dq_out, n: int = 2000) -> np.ndarray:
-        m = {"feedback": {**MOTOR_SET, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0},
+        m = {"feedback": {**MOTOR_SET, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0, "motor_velocity": "drive"},
              "gravity": {"enabled": False}, "feedforward": {"enabled": False}}
         ctl = Controller(ControllerConfig.from_mapping(m))
         r = ctl.record[0]

@@ -144,7 +144,7 @@ def _run_slip(cfg: ControllerConfig, p: PlantPoint, n: int, tau_link: np.ndarray
         _feed(r, k, cfg.dt_s)
         r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
         r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
-        r["dq_m_rad_s"] = x[1]
+        r["q_m_rad"], r["dq_m_rad_s"] = x[0], x[1]
         r["imu_new"] = 0
         if k >= next_imu:
             r["imu_new"] = 1

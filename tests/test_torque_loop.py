@@ -263,7 +263,7 @@ def _run_step_physical(cfg: ControllerConfig, p: PlantPoint, delay: int, n: int,
         r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
         r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
         r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
-        r["dq_m_rad_s"] = x[1]
+        r["q_m_rad"], r["dq_m_rad_s"] = x[0], x[1]       # the encoder's position (the observer's) and 0x606C
         r["imu_new"] = 0
         if k >= next_imu:
             r["imu_new"] = 1
@@ -397,10 +397,11 @@ def test_one_gyro_noise_sample_beyond_the_rest_band_does_not_kick_the_command():
 
 def test_acceleration_filter_is_the_step():
     """A(z) of the analysis reproduces the compiled step's response to a motor-velocity pulse
-    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m."""
+    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m (on the drive's velocity: the observer's own
+    paths are tests/test_motor_velocity.py's)."""
     from capstan.controller.law.loop_model import acceleration_filter
     m = _quiet({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 7.0, "acceleration_source": "motor",
-                             "ki_1_s": 0.0}})
+                             "ki_1_s": 0.0, "motor_velocity": "drive"}})
     m["feedforward"]["dead_band_rad_s"] = 0.0
     m["stability"] = {"gyro_noise_rad_s": 0.0}
     cfg = ControllerConfig.from_mapping(m)

@@ -41,7 +41,7 @@ Control law (per cycle, ``k``)::
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
     both: tau_m += J_c A[g a]      inertia compensation (feedback.inertia_comp_kg_m2): a the
-                                   link's (IMU rate, per sample) or the motor's velocity's backward
+                                   link's (IMU rate, per sample) or the motor's velocity v_m's backward
                                    difference / dt (the motor's: x g_fb, faded with kp and b, below),
                                    A a 1st-order low-pass
                                    (feedback.acceleration_cutoff_hz); the loop then
@@ -50,10 +50,12 @@ Control law (per cycle, ``k``)::
                                    sample in a row outside it), on the filter's input so that the
                                    gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
-    both: tau_m -= g_fb b (dq_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
+    both: tau_m -= g_fb b (v_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
                                    deflection-rate damping
-                                   (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
-                                   velocity (every cycle), the link's velocity per IMU sample, held,
+                                   (feedback.deflection_damping_Nms_rad): v_m the motor's velocity
+                                   (every cycle; feedback.motor_velocity: observer, from the encoder's
+                                   position and the torques on the motor, controller.law.motor_velocity;
+                                   or the drive's 0x606C), the link's velocity per IMU sample, held,
                                    low-passed (feedback.deflection_link_cutoff_hz) plus its lag x the
                                    link's acceleration (deflection_link_lag_compensation); g' = 1 with the
                                    rest gate g_fb below, else g (at rest the link's rate is gyro
