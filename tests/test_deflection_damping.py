@@ -188,8 +188,8 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
     assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
     on = {**PREV_JC, "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
-          "output_torque_gain": 0.0,
-          "band_gain": 0.0}     # the loop this was tuned on, before the band gain
+          "output_torque_gain": 0.0, "band_gain": 0.0,
+          "motor_velocity": "drive"}     # the loop this was tuned on, before the band gain and the velocity observer
     with pytest.raises(ConfigError, match="phase margin"):
         check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.3}}))
     rep = check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.2}}))

@@ -72,7 +72,8 @@ def test_motor_acceleration_feedback_is_a_smaller_motor_inertia():
     p = PlantPoint(240.0, 0.73, 0.5)
     for jc in (0.0, 0.4):
         cfg = _linear({**OLD_LOOP, "ki_1_s": 0.0, "inertia_comp_kg_m2": jc, "acceleration_source": "motor",
-                       "acceleration_cutoff_hz": 200.0, "deflection_link_lag_compensation": False})
+                       "acceleration_cutoff_hz": 200.0, "deflection_link_lag_compensation": False,
+                       "motor_velocity": "drive"})      # the exact velocity's backward difference: the lag T below
         f, zeta = _mode(closed_loop_poles(cfg, p, 0), cfg.dt_s, 1.0, 20.0)
         assert f == pytest.approx(math.sqrt(240.0 / (0.73 - jc)) / (2 * math.pi), rel=0.02)
         w2 = 240.0 / (0.73 - jc)
