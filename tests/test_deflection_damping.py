@@ -177,7 +177,8 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     from capstan.controller.law.stability import check_margins
     from capstan.models.common.errors import ConfigError
     cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 30.0,
-                   "deflection_link_lag_compensation": True})
+                   "deflection_link_lag_compensation": True,
+                   "motor_velocity": "drive"})   # open loop: an observer would see the command move the motor
     lead = deflection_link_lead_s(cfg)
     assert lead == pytest.approx(1.0 / (2 * math.pi * 30.0) + 1e-3)
     x = np.zeros(400)
