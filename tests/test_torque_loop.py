@@ -180,8 +180,10 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 100.0
     # the link's velocity at 150 Hz without the lag compensation, J_c 0.3, no band gain (tests/test_band_gain.py),
     # no output torque gain (tests/test_output_torque_gain.py)
+    # and the drive's exact velocity (these margins' edges were found on it; the observer's lag moves them, PM 44.4 deg
+    # at kp 1.25 / b 100: tests/test_motor_velocity.py checks the observer's set)
     plain = {**PREV_JC, "deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3,
-             "band_gain": 0.0, "output_torque_gain": 0.0}
+             "band_gain": 0.0, "output_torque_gain": 0.0, "motor_velocity": "drive"}
     assert check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.25,
                                                                      "deflection_damping_Nms_rad": 100.0}})).ok
     for kp, b in ((1.5, 100.0), (1.25, 130.0)):       # PM 44.8 and 44.5 deg: just outside
