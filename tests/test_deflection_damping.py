@@ -51,7 +51,8 @@ def test_the_analysis_filters_are_the_steps():
     """The loop model's paths reproduce the compiled step to rounding: the motor velocity
     enters as -b dq_m; the link's as b H_l (with the IMU running every cycle here, H_l without the
     one cycle that stands for the 400 Hz hold); the reference as b H_r on top of the reference."""
-    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 40.0, "deflection_reference_cutoff_hz": 3.0})
+    cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 40.0, "deflection_reference_cutoff_hz": 3.0,
+                   "motor_velocity": "drive"})     # the drive's velocity in: the observer's paths are test_motor_velocity's
     b = 100.0
     x = np.zeros(300)
     x[5] = 1e-2
@@ -149,7 +150,7 @@ def test_no_braking_in_a_steady_motion_and_nothing_at_rest():
             out[k] = ctl.step()
         return out
     shipped = {"kp": 1.25, "deflection_damping_Nms_rad": 100.0, "rest_gate_cutoff_hz": 5.0, "ki_1_s": 0.0,
-               "inertia_comp_kg_m2": 0.0}
+               "inertia_comp_kg_m2": 0.0, "motor_velocity": "drive"}     # a quantised 0x606C read as it is
     off = {**shipped, "deflection_damping_Nms_rad": 0.0}
     steady = (lambda k: 0.4, lambda k: 0.4)
     assert np.max(np.abs(run(shipped, *steady) - run(off, *steady))[500:]) < 1e-9
@@ -178,7 +179,8 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     from capstan.controller.law.stability import check_margins
     from capstan.models.common.errors import ConfigError
     cfg = _linear({**SHIPPED_LINEAR, "kp": 0.0, "deflection_link_cutoff_hz": 30.0,
-                   "deflection_link_lag_compensation": True})
+                   "deflection_link_lag_compensation": True,
+                   "motor_velocity": "drive"})   # open loop: an observer would see the command move the motor
     lead = deflection_link_lead_s(cfg)
     assert lead == pytest.approx(1.0 / (2 * math.pi * 30.0) + 1e-3)
     x = np.zeros(400)
@@ -189,8 +191,8 @@ def test_link_lag_compensation_is_the_steps_and_is_checked():
     want = 100.0 * (signal.lfilter(hl[0][1:], hl[1], x) + lead * signal.lfilter(a[0][1:], a[1], x))
     assert np.max(np.abs(u - want)) < 1e-9 * np.max(np.abs(u))
     on = {**PREV_JC, "deflection_link_cutoff_hz": 30.0, "deflection_link_lag_compensation": True, "acceleration_source": "link",
-          "output_torque_gain": 0.0,
-          "band_gain": 0.0}     # the loop this was tuned on, before the band gain
+          "output_torque_gain": 0.0, "band_gain": 0.0,
+          "motor_velocity": "drive"}     # the loop this was tuned on, before the band gain and the velocity observer
     with pytest.raises(ConfigError, match="phase margin"):
         check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.3}}))
     rep = check_margins(ControllerConfig.from_mapping({"feedback": {**on, "inertia_comp_kg_m2": 0.2}}))

@@ -45,7 +45,7 @@ def test_the_analysis_paths_are_the_steps():
     jc, b = 0.4, 100.0
     cfg = _linear({**MOTOR_LINEAR, "kp": 0.0, "inertia_comp_kg_m2": jc, "deflection_damping_Nms_rad": b,
                    "acceleration_cutoff_hz": 7.0, "deflection_link_cutoff_hz": 40.0,
-                   "deflection_link_lag_compensation": True})
+                   "deflection_link_lag_compensation": True, "motor_velocity": "drive"})
     x = np.zeros(400)
     x[5] = 1e-2
     am = acceleration_filter(cfg)
@@ -72,7 +72,8 @@ def test_motor_acceleration_feedback_is_a_smaller_motor_inertia():
     p = PlantPoint(240.0, 0.73, 0.5)
     for jc in (0.0, 0.4):
         cfg = _linear({**OLD_LOOP, "ki_1_s": 0.0, "inertia_comp_kg_m2": jc, "acceleration_source": "motor",
-                       "acceleration_cutoff_hz": 200.0, "deflection_link_lag_compensation": False})
+                       "acceleration_cutoff_hz": 200.0, "deflection_link_lag_compensation": False,
+                       "motor_velocity": "drive"})      # the exact velocity's backward difference: the lag T below
         f, zeta = _mode(closed_loop_poles(cfg, p, 0), cfg.dt_s, 1.0, 20.0)
         assert f == pytest.approx(math.sqrt(240.0 / (0.73 - jc)) / (2 * math.pi), rel=0.02)
         w2 = 240.0 / (0.73 - jc)
@@ -137,7 +138,7 @@ def test_faded_at_rest_and_in_at_onset_without_a_step():
     the motor's J_c adds nothing: the command is bit-identical to J_c 0. Once the joint moves, J_c x
     the motor's acceleration reaches the command, faded in by the 5 Hz gate (no step of J_c x a)."""
     def run(jc: float, dq_m, dq_out, n: int = 2000) -> np.ndarray:
-        m = {"feedback": {**MOTOR_SET, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0},
+        m = {"feedback": {**MOTOR_SET, "inertia_comp_kg_m2": jc, "ki_1_s": 0.0, "motor_velocity": "drive"},
              "gravity": {"enabled": False}, "feedforward": {"enabled": False}}
         ctl = Controller(ControllerConfig.from_mapping(m))
         r = ctl.record[0]

@@ -26,7 +26,10 @@ from test_deflection_damping import _linear
 #: the shipped output torque gain (config/controller.yaml)
 K_O, F_O = 2.0, 10.0
 #: the linear loop with it: the rest gate's fade open within a few cycles (a fast cutoff, dead band 0)
-LINEAR = {**SHIPPED_LINEAR, "rest_gate_cutoff_hz": 200.0, "output_torque_gain": K_O, "output_torque_cutoff_hz": F_O}
+#: and the drive's velocity: the pulse responses run the step open loop, where a velocity observer takes the command's
+#: change for the motor's (its own paths: tests/test_motor_velocity.py)
+LINEAR = {**SHIPPED_LINEAR, "rest_gate_cutoff_hz": 200.0, "output_torque_gain": K_O, "output_torque_cutoff_hz": F_O,
+          "motor_velocity": "drive"}
 SLIP_POINTS = [PlantPoint(200.0, 0.511, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
                PlantPoint(300.0, 0.949, 0.5, slip=True, link_stiffness_Nm_rad=0.945),
                PlantPoint(300.0, 0.511, 0.5, slip=True, link_stiffness_Nm_rad=0.945)]
@@ -145,7 +148,7 @@ def _run_slip(cfg: ControllerConfig, p: PlantPoint, n: int, tau_link: np.ndarray
         _feed(r, k, cfg.dt_s)
         r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
         r["T_up_out_N"], r["T_lo_out_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
-        r["dq_m_rad_s"] = x[1]
+        r["q_m_rad"], r["dq_m_rad_s"] = x[0], x[1]
         r["imu_new"] = 0
         if k >= next_imu:
             r["imu_new"] = 1

@@ -184,8 +184,10 @@ def test_margin_check_fails_for_a_gain_set_outside_and_passes_just_inside():
     assert shipped.feedback.kp == 0.75 and shipped.feedback.deflection_damping_Nms_rad == 100.0
     # the link's velocity at 150 Hz without the lag compensation, J_c 0.3, no band gain (tests/test_band_gain.py),
     # no output torque gain (tests/test_output_torque_gain.py)
+    # and the drive's exact velocity (these margins' edges were found on it; the observer's lag moves them, PM 44.4 deg
+    # at kp 1.25 / b 100: tests/test_motor_velocity.py checks the observer's set)
     plain = {**PREV_JC, "deflection_link_cutoff_hz": 150.0, "deflection_link_lag_compensation": False, "inertia_comp_kg_m2": 0.3,
-             "band_gain": 0.0, "output_torque_gain": 0.0}
+             "band_gain": 0.0, "output_torque_gain": 0.0, "motor_velocity": "drive"}
     assert check_margins(ControllerConfig.from_mapping({"feedback": {**plain, "kp": 1.25,
                                                                      "deflection_damping_Nms_rad": 100.0}})).ok
     for kp, b in ((1.5, 100.0), (1.25, 130.0)):       # PM 44.8 and 44.5 deg: just outside
@@ -268,7 +270,7 @@ def _run_step_physical(cfg: ControllerConfig, p: PlantPoint, delay: int, n: int,
         r["t_s"] = r["lc_t_s"] = r["imu_t_s"] = r["motor_t_s"] = k * cfg.dt_s
         r["T_up_in_N"], r["T_lo_in_N"] = 150.0 + tau / 0.08, 150.0 - tau / 0.08
         r["T_up_out_N"] = r["T_lo_out_N"] = 150.0
-        r["dq_m_rad_s"] = x[1]
+        r["q_m_rad"], r["dq_m_rad_s"] = x[0], x[1]       # the encoder's position (the observer's) and 0x606C
         r["imu_new"] = 0
         if k >= next_imu:
             r["imu_new"] = 1
@@ -403,10 +405,11 @@ def test_one_gyro_noise_sample_beyond_the_rest_band_does_not_kick_the_command():
 
 def test_acceleration_filter_is_the_step():
     """A(z) of the analysis reproduces the compiled step's response to a motor-velocity pulse
-    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m."""
+    (motor source, rest gate open) to rounding: u = J_c A(z) dq_m (on the drive's velocity: the observer's own
+    paths are tests/test_motor_velocity.py's)."""
     from capstan.controller.law.loop_model import acceleration_filter
     m = _quiet({"feedback": {"inertia_comp_kg_m2": 0.2, "acceleration_cutoff_hz": 7.0, "acceleration_source": "motor",
-                             "ki_1_s": 0.0}})
+                             "ki_1_s": 0.0, "motor_velocity": "drive"}})
     m["feedforward"]["dead_band_rad_s"] = 0.0
     m["stability"] = {"gyro_noise_rad_s": 0.0}
     cfg = ControllerConfig.from_mapping(m)

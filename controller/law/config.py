@@ -204,7 +204,8 @@ class ControllerConfig:
             "plant": asdict(self.plant),
             "ldo": {"q_cutoff_hz": self.q_cutoff_hz},
             "feedback": {**asdict(self.feedback),
-                         "acceleration_source": self.feedback.acceleration_source.name.lower()},
+                         "acceleration_source": self.feedback.acceleration_source.name.lower(),
+                         "motor_velocity": self.feedback.motor_velocity.name.lower()},
             "filters": {"tau_in_cutoff_hz": self.tau_in_cutoff_hz, "q_out_blend_hz": self.q_out_blend_hz},
             "gravity": {"enabled": self.gravity_enabled, "m_g_l_Nm": self.m_g_l_Nm},
             "feedforward": {

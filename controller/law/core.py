@@ -24,7 +24,8 @@ from capstan.controller.law.feedforward import friction_torque_per_N
 from capstan.controller.law.learned_effects import pack_block
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
                                         output_peak_biquad, q_filter_coefficients, qpinv_filter_coefficients)
-from capstan.controller.law.feedback_config import deflection_link_lead_s
+from capstan.controller.law.feedback_config import deflection_link_lead_s, observer_inertia_kg_m2
+from capstan.controller.law.motor_velocity import HISTORY, MotorVelocitySource, observer_gains
 from capstan.controller.law.records import FaultBits, new_record
 from capstan.controller.law import step as _s
 
@@ -66,6 +67,10 @@ def pack_config(cfg: ControllerConfig) -> np.ndarray:
     c[_s.C_JC] = fb.inertia_comp_kg_m2
     c[_s.C_ACC_ALPHA] = lowpass_alpha(fb.acceleration_cutoff_hz, dt)
     c[_s.C_ACC_LINK] = 1.0 if fb.acceleration_source == AccelerationSource.LINK else 0.0
+    c[_s.C_VOBS_ON] = 1.0 if fb.motor_velocity == MotorVelocitySource.OBSERVER else 0.0
+    c[_s.C_VOBS_K:_s.C_VOBS_K + 3] = observer_gains(fb.motor_velocity_observer_hz, fb.motor_velocity_bias_hz, dt)
+    c[_s.C_VOBS_DELAY] = min(cfg.stability.io_delay_cycles, HISTORY - 1)
+    c[_s.C_VOBS_J_INV] = 1.0 / observer_inertia_kg_m2(cfg)
     c[_s.C_DEFL_B] = fb.deflection_damping_Nms_rad
     c[_s.C_DEFL_ALPHA] = lowpass_alpha(fb.deflection_link_cutoff_hz, dt)
     c[_s.C_DEFL_REF_ALPHA] = lowpass_alpha(fb.deflection_reference_cutoff_hz, dt)

@@ -37,12 +37,14 @@ import numpy as np
 from scipy import signal
 
 from capstan.controller.law.config import AccelerationSource, ControllerConfig, TorqueLoop
-from capstan.controller.law.feedback_config import deflection_link_lead_s
+from capstan.controller.law.feedback_config import deflection_link_lead_s, observer_inertia_kg_m2
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
                                         output_peak_biquad, q_filter_coefficients, qpinv_filter_coefficients)
 from capstan.controller.law.loop_plant import (PlantPoint, plant_continuous, plant_discrete,  # noqa: F401 (re-exported)
-                                               plant_link_velocity_continuous, plant_state_space,
-                                               plant_velocity_continuous)
+                                               plant_link_velocity_continuous, plant_position_continuous,
+                                               plant_state_space, plant_velocity_continuous)
+from capstan.controller.law.motor_velocity import (HISTORY, MotorVelocitySource, observer_gains, observer_matrices,
+                                                   observer_responses)
 
 TF = tuple[np.ndarray, np.ndarray]
 
@@ -239,6 +241,47 @@ def acceleration_velocity_tf(cfg: ControllerConfig, p: PlantPoint) -> TF:
     return plant_velocity_continuous(p)
 
 
+def observer_delay_cycles(cfg: ControllerConfig) -> int:
+    """Which past command the motor velocity observer takes as acting on the motor: ``u[k-1-d]``, ``d`` the
+    configured I/O delay (``stability.io_delay_cycles``, at most the step's history allows)."""
+    return min(cfg.stability.io_delay_cycles, HISTORY - 1)
+
+
+def motor_velocity_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int, f_hz: np.ndarray) -> np.ndarray:
+    """The motor velocity the step reads, per unit command u, at ``f_hz`` (the loop's delay ``delay_cycles``).
+
+    ``drive``: the plant's velocity ``z^-d P_v``. ``observer`` (:mod:`capstan.controller.law.motor_velocity`):
+    ``H_q z^-d P_q + H_a (z^-(1+d_o) - z^-d P) / J_m``, ``P_q`` the motor's position, ``P`` tau_in, ``d_o``
+    :func:`observer_delay_cycles` (which may differ from the plant's ``d``: the delay's jitter)."""
+    fb, dt = cfg.feedback, cfg.dt_s
+    if fb.motor_velocity == MotorVelocitySource.DRIVE:
+        return freq_response(plant_discrete(p, dt, delay_cycles, plant_velocity_continuous(p)), f_hz, dt)
+    h_q, h_a = observer_responses(observer_gains(fb.motor_velocity_observer_hz, fb.motor_velocity_bias_hz, dt), dt, f_hz)
+    pq = freq_response(plant_discrete(p, dt, delay_cycles, plant_position_continuous(p)), f_hz, dt)
+    pt = freq_response(plant_discrete(p, dt, delay_cycles), f_hz, dt)
+    u_own = np.exp(-2j * math.pi * np.asarray(f_hz) * dt * (1 + observer_delay_cycles(cfg)))
+    return h_q * pq + h_a * (u_own - pt) / observer_inertia_kg_m2(cfg)
+
+
+def encoder_response(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """The motor velocity the step reads per unit position noise (the encoder's quantisation) at ``f_hz``: the
+    observer's ``H_q``, or 0 with the drive's velocity (its own quantisation is not modelled here)."""
+    fb = cfg.feedback
+    if fb.motor_velocity == MotorVelocitySource.DRIVE:
+        return np.zeros(len(np.atleast_1d(f_hz)), dtype=complex)
+    return observer_responses(observer_gains(fb.motor_velocity_observer_hz, fb.motor_velocity_bias_hz, cfg.dt_s), cfg.dt_s, f_hz)[0]
+
+
+def motor_velocity_to_command(cfg: ControllerConfig, f_hz: np.ndarray) -> np.ndarray:
+    """The command per unit motor velocity read (negated: ``u = -this v_m``): the damping ``b`` less J_c's
+    ``A`` (motor source; faded gains as configured)."""
+    fb = cfg.feedback
+    out = np.full(len(np.atleast_1d(f_hz)), fb.deflection_damping_Nms_rad, dtype=complex)
+    if fb.inertia_comp_kg_m2 != 0.0 and fb.acceleration_source == AccelerationSource.MOTOR:
+        out = out - fb.inertia_comp_kg_m2 * freq_response(acceleration_filter(cfg), f_hz, cfg.dt_s)
+    return out
+
+
 def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
                   f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(C, L)`` at ``f_hz``: the tau_in feedback path and the loop gain broken at the plant
@@ -252,16 +295,19 @@ def loop_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int,
     loop = c * freq_response(plant_discrete(p, cfg.dt_s, delay_cycles), f_hz, cfg.dt_s)
     jc = cfg.feedback.inertia_comp_kg_m2
     vel = acceleration_velocity_tf(cfg, p)
-    if jc != 0.0 and np.any(vel[0]):
+    b = cfg.feedback.deflection_damping_Nms_rad
+    v_m = (motor_velocity_response(cfg, p, delay_cycles, f_hz)
+           if b != 0.0 or (jc != 0.0 and cfg.feedback.acceleration_source == AccelerationSource.MOTOR) else None)
+    if jc != 0.0 and cfg.feedback.acceleration_source == AccelerationSource.MOTOR:
+        loop = loop - jc * freq_response(acceleration_filter(cfg), f_hz, cfg.dt_s) * v_m
+    elif jc != 0.0 and np.any(vel[0]):
         pv = plant_discrete(p, cfg.dt_s, delay_cycles, vel)
         loop = loop - jc * freq_response(_mul(acceleration_filter(cfg), pv), f_hz, cfg.dt_s)
     if cfg.feedback.link_inertia_comp_kg_m2 != 0.0 and p.slip:    # positive feedback of the link's acceleration
         pvo = plant_discrete(p, cfg.dt_s, delay_cycles, plant_link_velocity_continuous(p))
         loop = loop - link_inertia_response(cfg, f_hz) * freq_response(pvo, f_hz, cfg.dt_s)
-    b = cfg.feedback.deflection_damping_Nms_rad
-    if b != 0.0:    # - b (dq_m - H_l dq_out) on the command
-        pvm = plant_discrete(p, cfg.dt_s, delay_cycles, plant_velocity_continuous(p))
-        defl = freq_response(pvm, f_hz, cfg.dt_s)
+    if b != 0.0:    # - b (v_m - H_l dq_out) on the command
+        defl = v_m
         if p.slip:
             pvo = plant_discrete(p, cfg.dt_s, delay_cycles, plant_link_velocity_continuous(p))
             defl = defl - freq_response(_mul(deflection_link_filter(cfg), pvo), f_hz, cfg.dt_s)
@@ -348,8 +394,13 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
     k_o = fb.output_torque_gain if p.slip else 0.0
     Ho = _Block(output_torque_filter(cfg) if k_o != 0.0 else none)
     Hr = _Block(deflection_reference_filter(cfg) if (k_o != 0.0 or jlc != 0.0) and b_defl != 0.0 else none)
+    # the motor velocity observer (q^, v^) and the commands u[k-1] ... u[k-HISTORY] it takes its input from
+    obs = fb.motor_velocity == MotorVelocitySource.OBSERVER and (b_defl != 0.0 or (jc != 0.0 and not link))
+    if obs:
+        Fo, Go, Ko = observer_matrices(observer_gains(fb.motor_velocity_observer_hz, fb.motor_velocity_bias_hz, cfg.dt_s), cfg.dt_s)
+        d_o, j_inv = observer_delay_cycles(cfg), 1.0 / observer_inertia_kg_m2(cfg)
     sizes = [ag.shape[0], F1.n, Dd.n, QP.n, F2.n if ldo else 0, Q.n, 1 if ldo else 0, 1 if integral else 0, d, Acc.n, Hl.n,
-             AccL.n, Bd.n, Ho.n, Hr.n, AccJ.n]
+             AccL.n, Bd.n, Ho.n, Hr.n, AccJ.n, 3 if obs else 0, HISTORY if obs else 0]
     idx = np.cumsum([0] + sizes)
     n = int(idx[-1])
 
@@ -360,7 +411,12 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         tf_, out[1] = F1.step(xs[1], y)
         dd, out[2] = Dd.step(xs[2], tf_)
         qp, out[3] = QP.step(xs[3], tf_)
-        v = float(xs[0][v_index]) if v_index >= 0 else 0.0
+        v_m = float(xs[0][1])
+        out[16], out[17] = xs[16], xs[17]
+        if obs:     # the step's observer on the position, its input the command u[k-1-d_o] and tau_in (raw)
+            xo = Fo @ xs[16] + Go * ((float(xs[17][d_o]) - y) * j_inv) + Ko * float(xs[0][0])
+            out[16], v_m = xo, float(xo[1])
+        v = (float(xs[0][v_index]) if v_index >= 0 else 0.0) if link else v_m
         acc, out[9] = Acc.step(xs[9], v)
         acc_j, out[15] = AccJ.step(xs[15], float(xs[0][3]) if p.slip else 0.0)
         t_link = jlc * acc_j                     # the link inertia compensation's term (motor side)
@@ -382,7 +438,9 @@ def closed_loop_matrix(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int) 
         u += jc * acc
         v_link, out[10] = Hl.step(xs[10], float(xs[0][3]) if p.slip else 0.0)
         acc_l, out[11] = AccL.step(xs[11], float(xs[0][3]) if p.slip else 0.0)
-        u -= b_defl * (float(xs[0][1]) - v_link - lead * (acc if link else acc_l))
+        u -= b_defl * (v_m - v_link - lead * (acc if link else acc_l))
+        if obs:
+            out[17] = np.concatenate(([u], xs[17][:-1]))
         if ldo:
             out[6] = np.array([u])      # the observer's u[k-1] is the applied command, J_c term included
         if d:

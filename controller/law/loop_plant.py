@@ -55,6 +55,12 @@ def plant_velocity_continuous(p: PlantPoint) -> TF:
     return np.polymul([1.0, 0.0], np.polyadd(ml, [K])), np.polyadd(np.polymul(mm, ml), K * np.polyadd(mm, ml))
 
 
+def plant_position_continuous(p: PlantPoint) -> TF:
+    """``P_q(s)``: applied motor torque -> motor position q_m (:func:`plant_velocity_continuous` / s)."""
+    num, den = plant_velocity_continuous(p)
+    return num[:-1], den       # the velocity's numerator ends in the factor s
+
+
 def plant_link_velocity_continuous(p: PlantPoint) -> TF:
     """``P_o(s)``: applied motor torque -> link velocity dq_out (0 when the output sticks)."""
     if not p.slip:

@@ -32,8 +32,9 @@ import numpy as np
 
 from capstan.controller.law.config import ControllerConfig, StabilitySettings
 from capstan.controller.law.feedback_config import inertia_comp_faded
-from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, freq_response,
-                                               loop_response, reference_tf)
+from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, encoder_response, freq_response,
+                                               loop_response, motor_velocity_to_command, reference_tf)
+from capstan.controller.law.motor_velocity import encoder_noise_rad
 from capstan.models.common.errors import ConfigError
 
 
@@ -57,6 +58,7 @@ class PointResult:
     dominant_pole_abs: float = math.nan
     dominant_pole_hz: float = math.nan
     grip_stiffness_Nm_rad: float = 0.0      # > 0: a slip point with a hand of this stiffness holding the link
+    encoder_to_cmd_std_Nm: float = 0.0      # the motor encoder's quantisation -> command std (motor velocity observer)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -117,6 +119,7 @@ class StabilityReport:
                 "worst_sensitivity_peak_dB": max(p.sensitivity_peak_dB for p in self.points),
                 "worst_loadcell_to_cmd_std_Nm": max(p.loadcell_to_cmd_std_Nm for p in self.points),
                 "worst_gyro_to_cmd_std_Nm": max(p.gyro_to_cmd_std_Nm for p in self.points),
+                "worst_encoder_to_cmd_std_Nm": max(p.encoder_to_cmd_std_Nm for p in self.points),
                 "faded": [{"factor": f[0], "worst_phase_margin_deg": f[1], "worst_gain_margin_dB": f[2], "ok": f[3]}
                           for f in self.faded],
                 "points": [p.to_dict() for p in self.points],
@@ -209,11 +212,13 @@ def analyse_point(cfg: ControllerConfig, st: StabilitySettings, p: PlantPoint,
     lc_gain = float(np.sqrt(np.mean(np.abs(Cu * Su) ** 2)))
     ref_gain = float(np.sqrt(np.mean(np.abs(freq_response(reference_tf(cfg), fu, dt) * Su) ** 2)))
     sigma_tau_in = cfg.plant.r_in_m * math.sqrt(2.0) * st.tension_noise_N
+    enc_gain = float(np.sqrt(np.mean(np.abs(encoder_response(cfg, fu) * motor_velocity_to_command(cfg, fu) * Su) ** 2)))
     return PointResult(
         p.stiffness_Nm_rad, p.motor_inertia_kg_m2, p.slip, stable,
         float(gm), float(f_gm), float(pm), float(f_pm),
         float(20.0 * math.log10(abs(S[iS]))), float(f[iS]), float(f[iN]),
-        lc_gain * sigma_tau_in, ref_gain * gyro_slope * st.gyro_noise_rad_s, dom_abs, dom_hz)
+        lc_gain * sigma_tau_in, ref_gain * gyro_slope * st.gyro_noise_rad_s, dom_abs, dom_hz,
+        encoder_to_cmd_std_Nm=enc_gain * encoder_noise_rad(st.encoder_counts_per_rev))
 
 
 #: the plant modes of the grid, in the order of :func:`plant_points` (9 points each)

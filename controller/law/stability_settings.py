@@ -37,6 +37,9 @@ class StabilitySettings:
     grip_stiffness_Nm_rad: tuple[float, ...] = (60.0, 300.0, 1000.0)
     grip_damping_Nms_rad: float = 3.0
     min_grip_phase_margin_deg: float = 30.0
+    #: the motor encoder's counts per revolution: its quantisation (uniform over a count) is the position noise the
+    #: motor velocity observer turns into command noise (``encoder_to_cmd_std_Nm``); 0 = not counted
+    encoder_counts_per_rev: int = 1 << 17
 
 
 def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
@@ -62,6 +65,9 @@ def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
         raise ConfigError(f"{p}.grip_stiffness_Nm_rad", f"must be a list of up to 10 stiffnesses in (0, 1e5] Nm/rad "
                           f"(empty: no grip check), got {grip!r}")
     grip = tuple(float(x) for x in grip)
+    counts = c.get("encoder_counts_per_rev", d.encoder_counts_per_rev)
+    if isinstance(counts, bool) or not isinstance(counts, int) or not 0 <= counts <= 1 << 31:
+        raise ConfigError(f"{p}.encoder_counts_per_rev", f"must be an integer in [0, 2^31], got {counts!r}")
 
     def pos(key: str, hi: float) -> float:
         return get_float(c, key, p, getattr(d, key), min_value=0.0, max_value=hi)
@@ -76,4 +82,5 @@ def stability_from_mapping(c: Mapping[str, Any], p: str) -> StabilitySettings:
         get_float(c, "min_gain_margin_dB", p, d.min_gain_margin_dB, min_value=0.0, max_value=40.0),
         pos("tension_noise_N", 100.0), pos("gyro_noise_rad_s", 1.0), pos("gravity_model_error", 1.0),
         grip, pos("grip_damping_Nms_rad", 1e3),
-        get_float(c, "min_grip_phase_margin_deg", p, d.min_grip_phase_margin_deg, min_value=0.0, max_value=90.0))
+        get_float(c, "min_grip_phase_margin_deg", p, d.min_grip_phase_margin_deg, min_value=0.0, max_value=90.0),
+        counts)

@@ -41,7 +41,7 @@ Control law (per cycle, ``k``)::
           d_hat = -Q F P^-1 tau_in + Q F tau_m[k-1]                              eq (27)
     PID:  tau_m = tau_in_des + kp e + ki int(e) - D tau_in [+ tau_fc if placement = motor]
     both: tau_m += J_c A[g a]      inertia compensation (feedback.inertia_comp_kg_m2): a the
-                                   link's (IMU rate, per sample) or the motor's velocity's backward
+                                   link's (IMU rate, per sample) or the motor's velocity v_m's backward
                                    difference / dt (the motor's: x g_fb, faded with kp and b, below),
                                    A a 1st-order low-pass
                                    (feedback.acceleration_cutoff_hz); the loop then
@@ -50,10 +50,12 @@ Control law (per cycle, ``k``)::
                                    sample in a row outside it), on the filter's input so that the
                                    gate does not step the command: the differentiated gyro noise
                                    (0.14 rad/s^2 std after 5 Hz) stays off the command at rest
-    both: tau_m -= g_fb b (dq_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
+    both: tau_m -= g_fb b (v_m - LP[g' (r_out/r_in) dq_out] - D[tau_in_des - (r_in/r_out) tau_g] / K_c)
                                    deflection-rate damping
-                                   (feedback.deflection_damping_Nms_rad): dq_m the drive's motor
-                                   velocity (every cycle), the link's velocity per IMU sample, held,
+                                   (feedback.deflection_damping_Nms_rad): v_m the motor's velocity
+                                   (every cycle; feedback.motor_velocity: observer, from the encoder's
+                                   position and the torques on the motor, controller.law.motor_velocity;
+                                   or the drive's 0x606C), the link's velocity per IMU sample, held,
                                    low-passed (feedback.deflection_link_cutoff_hz) plus its lag x the
                                    link's acceleration (deflection_link_lag_compensation); g' = 1 with the
                                    rest gate g_fb below, else g (at rest the link's rate is gyro
@@ -102,6 +104,7 @@ from numba import njit
 from capstan.controller.law.feedforward import friction_feedforward_Nm, rest_gate
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
 from capstan.controller.law.ldo import biquad_init, biquad_init_steady, biquad_step, lowpass_step
+from capstan.controller.law.motor_velocity import HISTORY, observer_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
 from capstan.models.transmission.link import gravity_hold_torque_Nm
 
@@ -162,7 +165,11 @@ C_OUT_PEAK = 69         # 5 coefficients b0 b1 b2 a1 a2 of its peak filter 1 + g
 C_JLC = 74              # link inertia compensation J_lc [kg m^2] (feedback.link_inertia_comp_kg_m2; 0 = off)
 C_JLC_ALPHA = 75        # pole of its low-pass on the link's acceleration (feedback.link_inertia_cutoff_hz)
 C_JLC_HP_ALPHA = 76     # pole of its high-pass (feedback.link_inertia_highpass_hz)
-N_CFG = 77              # fixed part; the learned-effects block follows (controller.learned_effects)
+C_VOBS_ON = 77          # 1.0 = the motor's velocity from its position (feedback.motor_velocity observer), 0.0 = drive's
+C_VOBS_K = 78           # the observer's 3 gains (controller.law.motor_velocity.observer_gains)
+C_VOBS_DELAY = 81       # which past command acts on the motor now: u[k-1-d], d = stability.io_delay_cycles (<= 3)
+C_VOBS_J_INV = 82       # 1 / the observer's motor inertia [1/(kg m^2)] (feedback_config.observer_inertia_kg_m2)
+N_CFG = 83              # fixed part; the learned-effects block follows (controller.learned_effects)
 
 # ---------------------------------------------------------------- state array layout
 S_STARTED = 0           # 0 until the first cycle initialised the filters
@@ -199,7 +206,9 @@ S_OUT_E = S_BAND + 4       # low-passed output torque error [Nm] (NaN until the 
 S_OUT_PEAK = S_OUT_E + 1   # 2 biquad states of its peak filter (NaN until the first cycle set them)
 S_ACC_JLC = S_OUT_PEAK + 2  # the link's acceleration low-passed for the link inertia compensation [rad/s^2]
 S_ACC_JLC_HP = S_ACC_JLC + 1  # ... and its low-pass at the high-pass's corner (high-pass = x - that) [rad/s^2]
-N_STATE = S_ACC_JLC_HP + 1
+S_VOBS = S_ACC_JLC_HP + 1  # the motor velocity observer's position, velocity and acceleration estimates
+S_U_HIST = S_VOBS + 3      # the commands u[k-1] ... u[k-HISTORY] [Nm] (the observer's input)
+N_STATE = S_U_HIST + HISTORY
 
 
 @njit(cache=True)
@@ -224,7 +233,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_QF] = r.q_out_rad
         st[S_FF_OUT] = 1.0 if rest_gate(r.dq_out_rad_s, cfg[C_FF_DEAD_BAND]) > 0.0 else 0.0
         st[S_V_PREV] = r.dq_out_rad_s
-        st[S_VM_PREV] = r.dq_m_rad_s
+        st[S_VOBS] = r.q_m_rad
+        st[S_VOBS + 1] = 0.0 if cfg[C_VOBS_ON] != 0.0 else r.dq_m_rad_s
+        st[S_VOBS + 2] = 0.0
+        for j in range(HISTORY):
+            st[S_U_HIST + j] = st[S_CMD_PREV]
+        st[S_VM_PREV] = st[S_VOBS + 1]
         st[S_ACC_M] = 0.0
         st[S_ACC] = 0.0
         st[S_ACC_RAW] = 0.0
@@ -245,6 +259,12 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
         st[S_OUT_PEAK] = math.nan
         st[S_STARTED] = 1.0
     tau_in = lowpass_step(alpha, st, S_F_TIN, tau_in_raw)
+    # the motor's velocity (damping, J_c from the motor): from its position and the torques on it, or the drive's
+    v_m = r.dq_m_rad_s
+    if cfg[C_VOBS_ON] != 0.0:
+        acc_in = (st[S_U_HIST + int(cfg[C_VOBS_DELAY])] - tau_in_raw) * cfg[C_VOBS_J_INV]
+        v_m = observer_step(st, S_VOBS, r.q_m_rad, acc_in, cfg[C_DT], cfg[C_VOBS_K], cfg[C_VOBS_K + 1],
+                            cfg[C_VOBS_K + 2])
 
     # ---- references
     qb = cfg[C_QB_ALPHA]        # complementary filter: angle below the blend frequency, gyro above
@@ -294,8 +314,8 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             acc = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC, st[S_GATE] * st[S_ACC_RAW])
     acc_m = 0.0     # the motor's, every cycle (acceleration_source motor): the loop then sees J_m - J_c, which
     if cfg[C_JC] != 0.0 and cfg[C_ACC_LINK] == 0.0:     # without the deflection damping rings the stick mode: faded
-        acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (r.dq_m_rad_s - st[S_VM_PREV]) / cfg[C_DT])
-        st[S_VM_PREV] = r.dq_m_rad_s
+        acc_m = lowpass_step(cfg[C_ACC_ALPHA], st, S_ACC_M, st[S_GATE] * (v_m - st[S_VM_PREV]) / cfg[C_DT])
+        st[S_VM_PREV] = v_m
     ff_motor = cfg[C_FF_MOTOR] != 0.0
     # + g_fb J_lc (r_in / r_out) a: a share of the link's own inertia torque asked of the cable, from the link's
     # acceleration whatever J_c's source (held by a firm grip, the link does not accelerate; the motor does)
@@ -368,7 +388,7 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
             st[S_DEFL_REF] = ref_in
         ref_prev = st[S_DEFL_REF]
         v_ref = (lowpass_step(cfg[C_DEFL_REF_ALPHA], st, S_DEFL_REF, ref_in) - ref_prev) * cfg[C_DEFL_K_INV] / cfg[C_DT]
-        tau_raw -= g_fb * cfg[C_DEFL_B] * (r.dq_m_rad_s - v_link - v_ref)
+        tau_raw -= g_fb * cfg[C_DEFL_B] * (v_m - v_link - v_ref)
 
     # ---- safety stage
     bits |= output_fault_bits(tau_raw, st[S_RAW_PREV], cfg[C_TAU_FAULT], cfg[C_DTAU_FAULT_STEP])
@@ -380,6 +400,9 @@ def control_step(cfg: np.ndarray, st: np.ndarray, rec: np.ndarray) -> float:
     else:
         cmd = limit_command_Nm(tau_raw, st[S_CMD_PREV], cfg[C_TAU_MAX], cfg[C_DTAU_MAX_STEP], cfg[C_CMD_QUANTUM])
     st[S_CMD_PREV] = cmd
+    for j in range(HISTORY - 1, 0, -1):
+        st[S_U_HIST + j] = st[S_U_HIST + j - 1]
+    st[S_U_HIST] = cmd
 
     # ---- record
     r.tau_in_Nm = tau_in

@@ -220,12 +220,13 @@ class LockStep:
 def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: float, seed: int = 0,
                     noise: SensorNoise | None = None, settle_s: float = 0.5,
                     delay_cycles: int = 0, imu_rate_hz: float = 400.0,
-                    devices: DeviceSettings | None = None) -> dict[str, float]:
+                    devices: DeviceSettings | None = None, motor_inertia_kg_m2: float | None = None) -> dict[str, float]:
     """Run one controller on one condition; return the metrics.
 
     :param delay_cycles: command delay of the loop (0: lock-step idealisation).
     :param imu_rate_hz: the rig's IMU output rate [Hz] (the daemon's Xsens: 400 Hz).
     :param devices: the rig's device models (None: realistic).
+    :param motor_inertia_kg_m2: the rig's motor inertia (None: the condition's, 0.73 kg m^2); the controller keeps its own.
 
     :returns: ``mean_abs_tau_h_Nm`` (after ``settle_s``), ``rms_tau_h_Nm``, ``max_abs_tau_h_Nm``,
         ``rms_tau_in_err_Nm``, ``max_abs_tau_m_raw_Nm`` (largest demand before the safety stage),
@@ -237,7 +238,10 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
         ``commands_lost`` and ``commands_jittered`` on the command path.
     :raises ConfigError: on a bad controller mapping; ``OperatingRangeError`` on cable slack.
     """
-    rig = SimulatedRig(plant_from_mapping(plant_mapping(cond)), noise if noise is not None else SensorNoise(),
+    pm = plant_mapping(cond)
+    if motor_inertia_kg_m2 is not None:
+        pm["input"]["motor_inertia_kg_m2"] = motor_inertia_kg_m2
+    rig = SimulatedRig(plant_from_mapping(pm), noise if noise is not None else SensorNoise(),
                        seed=seed, imu_rate_hz=imu_rate_hz, devices=devices)
     ctl = Controller(ControllerConfig.from_mapping(ctl_mapping))
     ls = LockStep(ctl, rig, delay_cycles)
@@ -260,12 +264,14 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
             break
     k0 = int(round(settle_s / 1e-3))
     sel = tau_h[k0:]
+    tau_max = ctl.cfg.safety.tau_max_Nm
     return {
         "mean_abs_tau_h_Nm": float(np.mean(np.abs(sel))),
         "rms_tau_h_Nm": float(np.sqrt(np.mean(sel**2))),
         "max_abs_tau_h_Nm": float(np.max(np.abs(sel))),
         "rms_tau_in_err_Nm": float(np.sqrt(np.mean(err[k0:] ** 2))),
         "max_abs_tau_m_raw_Nm": float(np.max(np.abs(raw))),
+        "saturated_cycles": float(np.sum(np.abs(raw[k0:k + 1]) > tau_max)),
         "faulted": 1.0 if ctl.faulted else 0.0,
         **phase_means(tau_h[k0:], dq_ref[k0:]),
         **command_figures(cmd[k0:k + 1], ctl.cfg.dt_s, ctl.cfg.safety.dtau_max_Nm_s * ctl.cfg.dt_s),
@@ -273,17 +279,26 @@ def run_interaction(cond: Condition, ctl_mapping: dict[str, Any], duration_s: fl
     }
 
 
+#: the window of the command's slew figure ``max_change_10ms_Nm`` [s]
+SLEW_WINDOW_S = 0.010
+
+
 def command_figures(cmd_Nm: np.ndarray, dt_s: float, rate_step_Nm: float) -> dict[str, float]:
-    """``cmd_change_rms_Nm``, ``rate_limit_hits`` and ``max_abs_cmd_Nm`` of a command series,
-    counted as the daemon counts them (:class:`CommandQuality`)."""
+    """``cmd_change_rms_Nm``, ``rate_limit_hits``, ``cmd_hf_share`` (power above 20 Hz) and ``max_abs_cmd_Nm`` of a
+    command series, counted as the daemon counts them (:class:`CommandQuality`), and ``max_change_10ms_Nm``: the
+    largest change within any :data:`SLEW_WINDOW_S` (max - min over the window's samples) [Nm]."""
     if len(cmd_Nm) == 0:
-        return {"cmd_change_rms_Nm": math.nan, "rate_limit_hits": 0.0, "max_abs_cmd_Nm": math.nan}
+        return {"cmd_change_rms_Nm": math.nan, "rate_limit_hits": 0.0, "max_abs_cmd_Nm": math.nan,
+                "cmd_hf_share": math.nan, "max_change_10ms_Nm": math.nan}
     cq = CommandQuality(len(cmd_Nm), dt_s, rate_step_Nm)
     for c in cmd_Nm:
         cq.add(float(c), 0.0)
     r = cq.take_window()
+    w = min(len(cmd_Nm), int(round(SLEW_WINDOW_S / dt_s)) + 1)
+    win = np.lib.stride_tricks.sliding_window_view(np.asarray(cmd_Nm, dtype=float), w)
     return {"cmd_change_rms_Nm": r.cmd_change_rms_Nm, "rate_limit_hits": float(r.rate_limit_hits),
-            "max_abs_cmd_Nm": float(np.max(np.abs(cmd_Nm)))}
+            "max_abs_cmd_Nm": float(np.max(np.abs(cmd_Nm))), "cmd_hf_share": r.cmd_hf_share,
+            "max_change_10ms_Nm": float(np.max(win.max(axis=1) - win.min(axis=1)))}
 
 
 def phase_means(tau_h_Nm: np.ndarray, dq_ref_rad_s: np.ndarray) -> dict[str, float]:

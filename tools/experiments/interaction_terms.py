@@ -16,6 +16,8 @@ Variants (:data:`TERM_VARIANTS`):
 * ``no_deflection_damping`` (kp kept) / ``no_torque_feedback`` (kp 0, no damping, J_c 0.3: the
   loop before the damping) / ``kp_always_on`` (no fade at rest);
 * ``no_feedforward`` / ``no_inertia_comp`` / ``no_integral_trim`` — that term off;
+* ``motor_velocity_drive`` — the damping and J_c read the drive's velocity object as reported instead of the
+  motor velocity observer (on realistic devices: b x its 1 ms count difference in whole rpm);
 * ``no_link_inertia_comp`` — the link inertia compensation off; ``before_link_inertia_comp`` — the set
   shipped before it (b 80, J_c's acceleration at 5 Hz, k_o 2 with its peak at 1.5 Hz);
 * ``no_output_peak`` — the output torque gain's peak off; ``inertia_comp_link`` — J_c 0.2 from the
@@ -92,7 +94,9 @@ TERM_VARIANTS: tuple[TermVariant, ...] = (
     TermVariant("shipped", "feedforward + kp 0.75 + band gain 2.5 (0.3-2 Hz) + deflection damping"
                            " (b 100, link rate 80 Hz) + integral trim + inertia compensation (0.45, motor's, 3 Hz)"
                            " + output torque gain 2.5 (10 Hz, x2 peak at 2 Hz) + link inertia compensation"
-                           " (0.04, 0.3-3 Hz)"),
+                           " (0.04, 0.3-3 Hz); motor velocity from the encoder's position (observer 25 Hz)"),
+    TermVariant("motor_velocity_drive", "the damping and J_c on the drive's 0x606C as reported (before the observer)",
+                extra={"feedback": {"motor_velocity": "drive"}}),
     TermVariant("no_link_inertia_comp", "link inertia compensation off, the rest shipped",
                 extra={"feedback": {"link_inertia_comp_kg_m2": 0.0}}),
     TermVariant("before_link_inertia_comp", "the set before the link inertia compensation (b 80, J_c's 5 Hz, k_o 2,"

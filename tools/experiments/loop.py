@@ -118,6 +118,12 @@ def run(args: argparse.Namespace) -> int:
           f"({cfg.feedback.acceleration_source.name.lower()}, {cfg.feedback.acceleration_cutoff_hz:g} Hz), "
           f"I/O delay {st.io_delay_cycles} cycles")
     fb = cfg.feedback
+    if fb.deflection_damping_Nms_rad or (fb.inertia_comp_kg_m2 and fb.acceleration_source.name == "MOTOR"):
+        print(f"motor velocity: {fb.motor_velocity.name.lower()}" + (
+            f" (from the position, {st.encoder_counts_per_rev} counts/rev, and the torques: error dynamics at "
+            f"{fb.motor_velocity_observer_hz:g} Hz, its bias state at {fb.motor_velocity_bias_hz:g} Hz, model inertia "
+            f"{fb.motor_velocity_inertia_factor:g} x J_m)" if fb.motor_velocity.name == "OBSERVER" else
+            " (the drive's velocity object as reported)"))
     if fb.deflection_damping_Nms_rad or fb.rest_gate_cutoff_hz:
         print(f"deflection-rate damping {fb.deflection_damping_Nms_rad:g} Nm s/rad (link velocity low-pass "
               f"{fb.deflection_link_cutoff_hz:g} Hz, reference rate {fb.deflection_reference_cutoff_hz:g} Hz); "
@@ -140,13 +146,13 @@ def run(args: argparse.Namespace) -> int:
           f"J_m {cfg.plant.motor_inertia_kg_m2:g} +-{st.inertia_tolerance:.0%}; slip: link stiffness {k_slip:.3g} Nm/rad "
           f"(m g l {st.link_stiffness_Nm_rad:g} less the gravity model, residual >= {st.gravity_model_error:.0%})")
     print(f"{'mode':<21}{'K_c':>7}{'J_m':>6}{'stable':>7}{'GM dB':>8}{'@Hz':>7}{'PM deg':>8}{'@Hz':>7}"
-          f"{'|S| dB':>8}{'res Hz':>8}{'lc->cmd':>9}{'gyro->cmd':>10}")
+          f"{'|S| dB':>8}{'res Hz':>8}{'lc->cmd':>9}{'gyro->cmd':>10}{'enc->cmd':>9}")
     for i, p in enumerate(rep.points):
         mode = MODES[min(i // 9, len(MODES) - 1)]
         print(f"{mode:<21}{p.stiffness_Nm_rad:>7.0f}{p.motor_inertia_kg_m2:>6.2f}{'yes' if p.stable else 'NO':>7}"
               f"{p.gain_margin_dB:>8.1f}{p.gain_margin_at_hz:>7.1f}{p.phase_margin_deg:>8.1f}{p.phase_margin_at_hz:>7.1f}"
               f"{p.sensitivity_peak_dB:>8.1f}{p.resonance_hz:>8.1f}{p.loadcell_to_cmd_std_Nm:>9.4f}"
-              f"{p.gyro_to_cmd_std_Nm:>10.4f}")
+              f"{p.gyro_to_cmd_std_Nm:>10.4f}{p.encoder_to_cmd_std_Nm:>9.4f}")
     for g, pm, gm, ok in rep.faded:
         print(f"faded to x{g:g} (kp {g * fb.kp:g}, damping {g * fb.deflection_damping_Nms_rad:g}): worst PM {pm:.1f} deg, "
               f"GM {gm:.1f} dB{'' if ok else ' FAILS'}")

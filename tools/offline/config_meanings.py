@@ -50,6 +50,15 @@ MEANINGS: dict[str, str] = {
     "controller.feedback.acceleration_cutoff_hz": "first-order low-pass of the differentiated rate for J_c",
     "controller.feedback.acceleration_source": "where J_c's acceleration comes from: `motor` (drive velocity, "
                                                "every cycle) or `link` (IMU rate, per sample)",
+    "controller.feedback.motor_velocity": "the motor velocity the deflection damping and J_c (from the motor) read: "
+                                          "`observer` (from the encoder position 0x6064 and the torques on the "
+                                          "motor, controller/law/motor_velocity.py) or `drive` (0x606C as the drive "
+                                          "forms it)",
+    "controller.feedback.motor_velocity_observer_hz": "the velocity observer's error dynamics (double pole)",
+    "controller.feedback.motor_velocity_bias_hz": "pole of the observer's unexplained-acceleration state "
+                                                  "(friction, load-cell offsets, J_m's error)",
+    "controller.feedback.motor_velocity_inertia_factor": "the observer's model inertia as a multiple of "
+                                                         "plant.motor_inertia_kg_m2",
     "controller.feedback.deflection_damping_Nms_rad": "b: − b × (motor rate − the rate the link's motion and the "
                                                       "reference imply), damps the cable's deflection (0 = off)",
     "controller.feedback.deflection_link_cutoff_hz": "low-pass of the link's rate inside the deflection damping",
@@ -127,6 +136,8 @@ MEANINGS: dict[str, str] = {
                                             "two; 0 = as computed)",
     "controller.stability": "what the start-up loop check assumes and requires (controller/law/stability.py)",
     "controller.stability.io_delay_cycles": "command → measured effect beyond the zero-order hold",
+    "controller.stability.encoder_counts_per_rev": "motor encoder resolution whose quantisation the loop model "
+                                                   "carries to the command through the velocity observer",
     "controller.stability.stiffness_range_Nm_rad": "[low, high] K_c range the gains must be robust over",
     "controller.stability.inertia_tolerance": "J_m ± this fraction",
     "controller.stability.link_inertia_kg_m2": "the link's inertia (slip points, output free)",
