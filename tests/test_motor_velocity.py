@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from capstan.controller.law.config import ControllerConfig
-from capstan.controller.law.motor_velocity import (encoder_noise_rad, observer_gains, observer_responses,
+from capstan.controller.law.observer.motor_velocity import (encoder_noise_rad, observer_gains, observer_responses,
                                                    observer_step)
 from capstan.controller.law.stability import check_margins
 from capstan.models.common.errors import ConfigError

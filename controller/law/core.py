@@ -25,7 +25,7 @@ from capstan.controller.law.learned_effects import pack_block
 from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coefficients, lowpass_alpha,
                                         output_peak_biquad, q_filter_coefficients, qpinv_filter_coefficients)
 from capstan.controller.law.feedback_config import deflection_link_lead_s, observer_inertia_kg_m2
-from capstan.controller.law.motor_velocity import HISTORY, MotorVelocitySource, observer_gains
+from capstan.controller.law.observer.motor_velocity import HISTORY, MotorVelocitySource, observer_gains
 from capstan.controller.law.records import FaultBits, new_record
 from capstan.controller.law import step as _s
 

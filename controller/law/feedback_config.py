@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Mapping
 
-from capstan.controller.law.motor_velocity import MotorVelocitySource
+from capstan.controller.law.observer.motor_velocity import MotorVelocitySource
 from capstan.models.common.config_tools import get_bool, get_choice, get_float, reject_unknown
 from capstan.models.common.errors import ConfigError
 
@@ -105,7 +105,7 @@ class FeedbackGains:
     link_inertia_highpass_hz: float = 0.3
     #: the motor velocity the damping and the motor-source inertia compensation read: ``observer`` forms it from
     #: the motor's position (the encoder counts) and the torques on the motor
-    #: (:mod:`capstan.controller.law.motor_velocity`), with its error dynamics at ``motor_velocity_observer_hz``
+    #: (:mod:`capstan.controller.law.observer.motor_velocity`), with its error dynamics at ``motor_velocity_observer_hz``
     #: [Hz]; ``drive`` takes the drive's velocity object as reported (a 1 ms count difference or whole rpm on a
     #: real drive: b x its quantisation steps the command)
     motor_velocity: MotorVelocitySource = MotorVelocitySource.OBSERVER

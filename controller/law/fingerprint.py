@@ -30,6 +30,9 @@ MODEL_MODULES: tuple[str, ...] = (
     "capstan.models.transmission.routing",
 )
 
+#: the law's subpackage the fingerprint leaves out (an offline tool that the step never calls)
+TUNING = "capstan.controller.law.tuning"
+
 #: what :func:`law_fingerprint` returns when a source is not readable (e.g. a bytecode-only install)
 UNAVAILABLE = "unavailable"
 
@@ -39,7 +42,10 @@ def law_modules() -> list[str]:
     import capstan.controller.law as law
 
     names = {"capstan.controller.law", *MODEL_MODULES}
-    names.update(f"capstan.controller.law.{m.name}" for m in pkgutil.iter_modules(law.__path__))
+    for m in pkgutil.walk_packages(law.__path__, "capstan.controller.law."):
+        # the gain tuner (law/tuning/) is an offline tool on the loop analysis, not part of the law
+        if m.name != TUNING and not m.name.startswith(TUNING + "."):
+            names.add(m.name)
     return sorted(names)
 
 

@@ -43,7 +43,7 @@ from capstan.controller.law.ldo import (band_pass_sos, derivative_filter_coeffic
 from capstan.controller.law.loop_plant import (PlantPoint, plant_continuous, plant_discrete,  # noqa: F401 (re-exported)
                                                plant_link_velocity_continuous, plant_position_continuous,
                                                plant_state_space, plant_velocity_continuous)
-from capstan.controller.law.motor_velocity import (HISTORY, MotorVelocitySource, observer_gains, observer_matrices,
+from capstan.controller.law.observer.motor_velocity import (HISTORY, MotorVelocitySource, observer_gains, observer_matrices,
                                                    observer_responses)
 
 TF = tuple[np.ndarray, np.ndarray]
@@ -250,7 +250,7 @@ def observer_delay_cycles(cfg: ControllerConfig) -> int:
 def motor_velocity_response(cfg: ControllerConfig, p: PlantPoint, delay_cycles: int, f_hz: np.ndarray) -> np.ndarray:
     """The motor velocity the step reads, per unit command u, at ``f_hz`` (the loop's delay ``delay_cycles``).
 
-    ``drive``: the plant's velocity ``z^-d P_v``. ``observer`` (:mod:`capstan.controller.law.motor_velocity`):
+    ``drive``: the plant's velocity ``z^-d P_v``. ``observer`` (:mod:`capstan.controller.law.observer.motor_velocity`):
     ``H_q z^-d P_q + H_a (z^-(1+d_o) - z^-d P) / J_m``, ``P_q`` the motor's position, ``P`` tau_in, ``d_o``
     :func:`observer_delay_cycles` (which may differ from the plant's ``d``: the delay's jitter)."""
     fb, dt = cfg.feedback, cfg.dt_s

@@ -34,7 +34,7 @@ from capstan.controller.law.config import ControllerConfig, StabilitySettings
 from capstan.controller.law.feedback_config import inertia_comp_faded
 from capstan.controller.law.loop_model import (PlantPoint, closed_loop_poles, encoder_response, freq_response,
                                                loop_response, motor_velocity_to_command, reference_tf)
-from capstan.controller.law.motor_velocity import encoder_noise_rad
+from capstan.controller.law.observer.motor_velocity import encoder_noise_rad
 from capstan.models.common.errors import ConfigError
 
 

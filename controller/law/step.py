@@ -104,7 +104,7 @@ from numba import njit
 from capstan.controller.law.feedforward import friction_feedforward_Nm, rest_gate
 from capstan.controller.law.learned_effects import N_FX_STATE, learned_effects_Nm
 from capstan.controller.law.ldo import biquad_init, biquad_init_steady, biquad_step, lowpass_step
-from capstan.controller.law.motor_velocity import HISTORY, observer_step
+from capstan.controller.law.observer.motor_velocity import HISTORY, observer_step
 from capstan.controller.law.safety import input_fault_bits, limit_command_Nm, output_fault_bits
 from capstan.models.transmission.link import gravity_hold_torque_Nm
 

@@ -52,7 +52,7 @@ MEANINGS: dict[str, str] = {
                                                "every cycle) or `link` (IMU rate, per sample)",
     "controller.feedback.motor_velocity": "the motor velocity the deflection damping and J_c (from the motor) read: "
                                           "`observer` (from the encoder position 0x6064 and the torques on the "
-                                          "motor, controller/law/motor_velocity.py) or `drive` (0x606C as the drive "
+                                          "motor, controller/law/observer/motor_velocity.py) or `drive` (0x606C as the drive "
                                           "forms it)",
     "controller.feedback.motor_velocity_observer_hz": "the velocity observer's error dynamics (double pole)",
     "controller.feedback.motor_velocity_bias_hz": "pole of the observer's unexplained-acceleration state "
