@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 import yaml
 
-from capstan.tools.commands.run import EXIT_FAULT
+from capstan.tools.commands.run import EXIT_DEVICE_LOST, EXIT_FAULT
 
 
 def shortest_sensor_timeout_s(config: Path) -> float:
@@ -37,10 +37,14 @@ def host_stalled(summary: dict[str, Any], timeout_s: float) -> bool:
     :param timeout_s: the shortest sensor timeout of the run's config [s].
     """
     faults = summary.get("faults") or []
+    rig_lost_s = summary.get("plant", {}).get("lost_s", 0.0)
     # the daemon names a host stall itself when its loop had not run for > 5 periods before
     # the faulted cycle; a gap of a whole sensor timeout is one whatever the text says
     stalled = summary.get("fault_gap_s", 0.0) >= timeout_s or any("host stall" in f for f in faults)
-    return bool(faults) and stalled and summary.get("plant", {}).get("lost_s", 0.0) > 0.0
+    # or the simulated rig's own process got no CPU (it fell behind by more than its catch-up
+    # bound) and the fault is the silence that left: a device lost or stale
+    rig_silent = rig_lost_s > 0.0 and any(("device loss" in f or "STALE_" in f) for f in faults)
+    return bool(faults) and (stalled or rig_silent) and rig_lost_s > 0.0
 
 
 def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProcess, str]], config: Path,
@@ -51,7 +55,7 @@ def run_until_undisturbed(attempt: Callable[[], tuple[subprocess.CompletedProces
     for k in range(1, tries + 1):
         res, out = attempt()
         summary = json.loads(out) if out.strip() else {}
-        if k == tries or not (res.returncode == EXIT_FAULT and host_stalled(summary, timeout_s)):
+        if k == tries or not (res.returncode in (EXIT_FAULT, EXIT_DEVICE_LOST) and host_stalled(summary, timeout_s)):
             break
         warnings.warn(f"host stall of {summary['fault_gap_s'] * 1e3:.0f} ms faulted the HIL run "
                       f"(rig lost {summary['plant']['lost_s'] * 1e3:.0f} ms); rerunning", stacklevel=2)

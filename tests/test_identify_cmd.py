@@ -112,12 +112,13 @@ def test_text_output_lists_every_parameter(run_csv: Path, capsys: pytest.Capture
 
 
 def test_bad_input_exits_2_naming_the_problem(run_csv: Path, tmp_path: Path,
-                                              caplog: pytest.LogCaptureFixture) -> None:
+                                              capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["identify", str(run_csv), "--model", "distributed"]) == 2
-    assert "unobservable" in caplog.text
+    err = capsys.readouterr().err                  # one line on stderr, no traceback
+    assert "unobservable" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     table = read_table(run_csv)
     cols = {k: v for k, v in table.columns.items() if k != "tau_out"}
     bad = write_table(MeasurementTable(cols, dict(table.meta), "bad"), tmp_path / "bad.csv")
-    caplog.clear()
     assert main(["identify", str(bad)]) == 2
-    assert "tau_out" in caplog.text
+    err = capsys.readouterr().err
+    assert "tau_out" in err and "Traceback" not in err

@@ -70,7 +70,11 @@ class LoopSettings:
     :ivar overrun_streak_fault: this many consecutive late cycles is a fault.
     :ivar sensor_fresh_s: at start-up, every device must have delivered data this
         recently before READY (afterwards staleness is the step's STALE_* check) [s].
-    :ivar startup_timeout_s: time for all devices to deliver fresh data after enable [s].
+    :ivar startup_timeout_s: time for all devices to deliver fresh data, and for the loop to
+        hold its period, after enable [s].
+    :ivar arm_on_time_cycles: the loop arms (starts commanding torque) only after this many
+        consecutive on-time cycles with every device fresh; late cycles before arming are
+        not a fault (the command is zero), only a start-up timeout.
     :ivar ramp_down_s: torque ramp to zero on SIGTERM/SIGINT [s].
     :ivar stats_interval_s: timing statistics reporting interval [s].
     :ivar limits: see :class:`Limits`.
@@ -84,6 +88,7 @@ class LoopSettings:
     ramp_down_s: float = 0.2
     stats_interval_s: float = 1.0
     limits: Limits = field(default_factory=Limits)
+    arm_on_time_cycles: int = 200
 
 
 @dataclass(frozen=True)
@@ -219,7 +224,7 @@ def _loop(c: Mapping[str, Any]) -> LoopSettings:
     p = "loop"
     d = LoopSettings()
     keys = {"period_s", "busy_tail_s", "overrun_streak_fault", "sensor_fresh_s", "startup_timeout_s",
-            "ramp_down_s", "stats_interval_s", "limits"}
+            "ramp_down_s", "stats_interval_s", "limits", "arm_on_time_cycles"}
     reject_unknown(c, keys, p)
 
     def pos(key: str) -> float:
@@ -232,7 +237,8 @@ def _loop(c: Mapping[str, Any]) -> LoopSettings:
     out = LoopSettings(period, tail, get_int(c, "overrun_streak_fault", p, d.overrun_streak_fault, min_value=1),
                        pos("sensor_fresh_s"),
                        pos("startup_timeout_s"), get_float(c, "ramp_down_s", p, d.ramp_down_s, min_value=0.0),
-                       pos("stats_interval_s"), _limits(section(c, "limits", p, required=False)))
+                       pos("stats_interval_s"), _limits(section(c, "limits", p, required=False)),
+                       get_int(c, "arm_on_time_cycles", p, d.arm_on_time_cycles, min_value=1))
     if out.sensor_fresh_s < period:
         raise ConfigError(f"{p}.sensor_fresh_s", f"must be >= period_s ({period}), got {out.sensor_fresh_s}")
     return out

@@ -197,6 +197,8 @@ class Daemon:
         streak_fault = L.overrun_streak_fault
         phase = Phase.ARMING
         self.phase = phase
+        arm_cycles = L.arm_on_time_cycles
+        on_time = best_on_time = 0
         arm_until_ns = time.monotonic_ns() + int(L.startup_timeout_s * 1e9)
         imu_t = lc_t = m_t = -math.inf
         cpu0, wall0 = cpu_snapshot(sink), time.monotonic()
@@ -243,7 +245,7 @@ class Daemon:
             r["cycle"] = cycle
             r["t_s"] = t_s
             r["t_ns"] = wake
-            if sl.streak >= streak_fault:
+            if phase != Phase.ARMING and sl.streak >= streak_fault:
                 ext |= FaultBits.OVERRUN_STREAK
                 reason = reason or f"{sl.streak} consecutive late cycles (limit {streak_fault})"
             if phase != Phase.ARMING:
@@ -261,18 +263,27 @@ class Daemon:
             if phase == Phase.ARMING:
                 r["cmd_scale"] = scale = 0.0
                 tau = 0.0
-                if ext == 0 and all_fresh(t_s, fresh_s, m_t, imu_t, lc_t):
+                fresh = all_fresh(t_s, fresh_s, m_t, imu_t, lc_t)
+                on_time = on_time + 1 if (fresh and not late and ext == 0) else 0
+                best_on_time = max(best_on_time, on_time)
+                if on_time >= arm_cycles:
                     phase = self.phase = Phase.RUNNING
                     cpu0, wall0 = cpu_snapshot(sink), time.monotonic()
-                    note.ready("drive enabled, sensors healthy")
-                    log.info("armed after %d cycles: drive enabled, sensors healthy", cycle)
+                    note.ready("drive enabled, sensors healthy, loop on time")
+                    log.info("armed after %d cycles: drive enabled, sensors healthy, %d cycles on time",
+                             cycle, on_time)
                 elif ext == 0 and wake > arm_until_ns:
-                    missing = [n for n, t in (("drive", m_t), ("imu", imu_t), ("load_cells", lc_t))
-                               if not t_s - t <= fresh_s]
                     motor.write_torque(0.0)
                     motor.send_cycle()
-                    raise DeviceTimeoutError(f"no fresh data from {', '.join(missing)} within "
-                                             f"{L.startup_timeout_s} s after enable")
+                    missing = [n for n, t in (("drive", m_t), ("imu", imu_t), ("load_cells", lc_t))
+                               if not t_s - t <= fresh_s]
+                    if missing:
+                        raise DeviceTimeoutError(f"no fresh data from {', '.join(missing)} within "
+                                                 f"{L.startup_timeout_s} s after enable")
+                    raise DeviceTimeoutError(
+                        f"the loop did not hold its {L.period_s * 1e3:g} ms period within {L.startup_timeout_s} s "
+                        f"after enable: longest run {best_on_time} on-time cycles, {sl.overruns} late "
+                        f"(loop.arm_on_time_cycles {arm_cycles}); the host is too busy to run the loop")
             else:
                 scale = 1.0
                 if phase == Phase.RAMPING:
