@@ -141,7 +141,7 @@ def devices(journal: list[str], motor: FakeMotor | None = None, imu: FakeImu | N
 
 def config(**loop: Any) -> DaemonConfig:
     base = {"period_s": 1e-3, "ramp_down_s": 0.05, "startup_timeout_s": 0.3, "stats_interval_s": 0.1,
-            "overrun_streak_fault": 5}
+            "overrun_streak_fault": 5, "arm_on_time_cycles": 20}
     base.update(loop)
     return DaemonConfig.from_mapping({
         "controller": {}, "motor": {"backend": "fake"}, "imu": {"backend": "fake"},

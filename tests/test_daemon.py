@@ -133,6 +133,25 @@ def test_overrun_streak_is_a_fault(tmp_path: Path) -> None:
     assert motor.sent[-1] == 0.0
 
 
+def test_late_cycles_before_arming_are_a_start_up_timeout_not_a_fault(tmp_path: Path) -> None:
+    """A loop that cannot hold its period from the start never commands torque: no OVERRUN_STREAK
+    fault while arming (the command is zero), a start-up timeout that names the loop instead."""
+    journal: list[str] = []
+    motor = FakeMotor(journal, slow_from=0, slow_s=0.0025)          # every cycle 2.5 ms
+    d, motor, ctl, *_ = make(tmp_path, motor=motor, stale_s=10.0)
+    with pytest.raises(DeviceTimeoutError, match="did not hold its 1 ms period"):
+        d.run(duration_s=2.0)
+    assert set(motor.sent) == {0.0} and ctl.steps == 0 and "READY=1" not in journal
+
+
+def test_arms_after_the_configured_on_time_cycles(tmp_path: Path) -> None:
+    """READY and the first stepped cycle come after loop.arm_on_time_cycles on-time cycles."""
+    d, motor, ctl, sink, journal, _ = make(tmp_path)
+    d.run(duration_s=0.2)
+    first_step = len(motor.sent) - ctl.steps                        # zero-torque cycles before the first step
+    assert 20 <= first_step <= 40 and ctl.steps > 0                 # 20 on time (a late one restarts the count)
+
+
 def test_sensor_never_healthy_refuses_ready(tmp_path: Path) -> None:
     d, motor, ctl, sink, journal, listener = make(tmp_path, imu=FakeImu(stop_after=0))
     with pytest.raises(DeviceTimeoutError, match="imu"):

@@ -13,6 +13,7 @@ daemon run (``logging.dir`` of the START config).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from dataclasses import dataclass
@@ -33,6 +34,9 @@ log = logging.getLogger("capstan.rig")
 #: time the loop itself did not run (a host stall: the process got no CPU, as the daemon names
 #: it) is not the device's silence and is not counted
 SENSOR_TIMEOUT_S = 0.05
+#: a move that a host stall stopped (the daemon's own diagnosis: its loop got no CPU, so the
+#: drive's heartbeat or a sensor looked lost) is repeated from rest; this many attempts in all
+HOST_STALL_TRIES = 2
 
 
 class Profile(Protocol):
@@ -191,6 +195,28 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
         raw[role] = {**raw[role], **keys}
     cfg = DaemonConfig.from_mapping(raw, source=start.source)
     Path(cfg.logging.dir).mkdir(parents=True, exist_ok=True)
+    pristine = copy.deepcopy(vars(profile))       # the profile's state before the move (it may adapt)
+    for attempt in range(1, HOST_STALL_TRIES + 1):
+        ctl, daemon, stall = _run_once(cfg, step, name, profile, max_duration_s, start)
+        if not stall:
+            break
+        if attempt == HOST_STALL_TRIES:
+            raise BringupStop(step, stall)
+        log.warning("%s: %s; the move is repeated from rest (attempt %d of %d)", name, stall, attempt + 1,
+                    HOST_STALL_TRIES)
+        vars(profile).update(copy.deepcopy(pristine))  # in place: the caller reads the profile afterwards
+    log.info("%s: %d cycles, log %s", name, ctl.n, daemon.summary.log_path)
+    return StepData(name, ctl.kept[:ctl.n].copy(), daemon.summary.log_path)
+
+
+def _run_once(cfg: DaemonConfig, step: str, name: str, profile: Profile, max_duration_s: float,
+              start: RigStart) -> tuple[ProfileController, Daemon, str]:
+    """One attempt of :func:`run_profile`; returns the controller, the daemon and, if the move
+    stopped on a host stall the daemon diagnosed (the process got no CPU, not a device or the
+    profile), that stop's one-line reason ("" otherwise).
+
+    :raises BringupStop: on any other stop, as :func:`run_profile`.
+    """
     ctl = ProfileController(profile, start.limits, start.drawing.r_in_m, int(max_duration_s * 1000) + 2000)
     daemon = Daemon(cfg, controller=ctl)
     ctl.stop_request = daemon.request_stop
@@ -203,8 +229,11 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
     try:
         daemon.run(duration_s=max_duration_s)
     except ControlFaultError as exc:
-        raise BringupStop(step, f"{name}: {ctl.reason or exc.reason} (torque zero, drive disabled; log "
-                                f"{daemon.summary.log_path})") from None
+        text = (f"{name}: {ctl.reason or exc.reason} (torque zero, drive disabled; log "
+                f"{daemon.summary.log_path})")
+        if not ctl.reason and "host stall" in exc.reason:
+            return ctl, daemon, text
+        raise BringupStop(step, text) from None
     except BringupStop:
         raise
     except (DriverError, CapstanError) as exc:     # a device or the log writer failed: no torque was left on
@@ -212,5 +241,4 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
     if not ctl.finished:
         raise BringupStop(step, f"{name}: the move did not finish within {max_duration_s:.0f} s "
                                 f"(torque ramped to zero)")
-    log.info("%s: %d cycles, log %s", name, ctl.n, daemon.summary.log_path)
-    return StepData(name, ctl.kept[:ctl.n].copy(), daemon.summary.log_path)
+    return ctl, daemon, ""
