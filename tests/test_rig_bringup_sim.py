@@ -9,6 +9,7 @@ truth (which mistake a plant carries) is read here, by the test, never by the wo
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 import time
@@ -71,7 +72,7 @@ def test_each_sensor_mistake_is_named_before_any_loop(plant: str, tmp_path: Path
 def test_fix_writes_the_imu_sign_and_passes_the_check(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     code, rep, out = _bringup(tmp_path, "mistake_imu_sign.yaml", capsys, "--fix")
     assert rep["fixes"] == {"imu": {"sign": -1.0}}
-    assert rep["step"] in ("identify", "tune")                  # the check passed after the correction
+    assert rep["step"] in ("identify", "tune", "verify")                # the check passed after the correction
     assert rep["check"]["d_q_out_rad"] > 0.0
     assert [f["key"] for f in rep["findings"]] == ["imu.sign"]
 
@@ -132,6 +133,9 @@ def test_whole_workflow_on_a_variant_ends_with_a_config_capstan_hil_accepts(tmp_
     assert ident["K_c"]["value"] == pytest.approx(truth["transmission"]["stiffness_Nm_rad"], rel=0.10)
     assert ident["J_m"]["value"] == pytest.approx(truth["input"]["motor_inertia_kg_m2"], rel=0.10)
     assert ident["m_g_l"]["value"] == pytest.approx(truth["output"]["link"]["m_g_l_Nm"], rel=0.10)
+    ver = rep["verify"]                                # the tuned loop ran before the file was written
+    assert rep["step"] == "verify" and ver["cycles"] > 4000 and not ver["rings"]
+    assert ver["log_path"] in rep["logs"] and math.isfinite(ver["felt_mean_Nm"])
     cfg = DaemonConfig.load(out)                       # a complete daemon config ...
     build_controller(cfg)                              # ... whose gains pass the start-up margins
     assert cfg.imu["port"] == "auto" and "provenance" not in cfg.raw

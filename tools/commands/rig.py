@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Callable
 
 from capstan.tools.hil.serve import ServedRig, load_plant
+from capstan.tools.rig.verify_step import VERIFY_S
 from capstan.tools.rig.start_config import RigStart
 from capstan.models.common.config_tools import load_yaml
 from capstan.models.common.errors import DriverError
@@ -92,7 +93,13 @@ def run(args: argparse.Namespace) -> int:
         # the controller structure the tuning scales: the shipped rig's, or on the simulated
         # rig the shipped HIL config's (its staleness limits allow for a shared VM's stalls)
         base = load_yaml(config_path("hil.yaml" if args.plant is not None else "rig.yaml"))["controller"]
-        rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start, base_controller=base)
+        ask = None
+        if args.plant is None and sys.stdin.isatty():
+            def ask() -> None:
+                _ask(f"The tuned loop runs for {VERIFY_S:.0f} s next: take the link and move it gently through "
+                     f"its range while it runs, then press Enter to start")
+        rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start, base_controller=base,
+                      before_verify=ask)
     except DriverError as exc:                   # the served rig did not come up: nothing moved
         rep.step, rep.reason = "check", f"{type(exc).__name__}: {exc}"
     finally:

@@ -1,4 +1,4 @@
-"""``capstan rig bringup``: check -> calibrate -> identify -> tune, then one atomic write.
+"""``capstan rig bringup``: check -> calibrate -> identify -> tune -> verify, then one atomic write.
 
 Each step moves the rig only through :func:`capstan.tools.rig.step_run.run_profile` (the
 daemon, the START limits, zero torque on any limit, an MCAP log per move). A step that
@@ -24,6 +24,7 @@ from capstan.tools.rig.profiles import CheckMove
 from capstan.tools.rig.start_config import BringupStop, RigStart
 from capstan.tools.rig.step_run import StepData, run_profile
 from capstan.tools.rig.tuned import provenance_comment, tuned_mapping, write_atomic
+from capstan.tools.rig.verify_step import verify
 
 log = logging.getLogger("capstan.rig")
 
@@ -44,6 +45,7 @@ class BringupReport:
     calibration: dict[str, Any] = field(default_factory=dict)
     identification: dict[str, Any] = field(default_factory=dict)
     tuning: dict[str, Any] = field(default_factory=dict)
+    verify: dict[str, Any] = field(default_factory=dict)
     logs: list[str] = field(default_factory=list)
     out: str | None = None
     wall_s: float = 0.0
@@ -79,7 +81,8 @@ def run_check(start: RigStart, report: BringupReport) -> tuple[StepData, CheckMo
 def bringup(start: RigStart, out: str | Path, fix: bool = False,
             hold_link: Callable[[bool], None] | None = None,
             base_controller: Mapping[str, Any] | None = None,
-            tuned_start: RigStart | None = None) -> BringupReport:
+            tuned_start: RigStart | None = None,
+            before_verify: Callable[[], None] | None = None) -> BringupReport:
     """Run the workflow; the report says how far it got and why it stopped.
 
     :param hold_link: clamps (True) / releases (False) the link for the held run; None: no
@@ -88,6 +91,8 @@ def bringup(start: RigStart, out: str | Path, fix: bool = False,
         (default: the shipped ``config/rig.yaml``'s).
     :param tuned_start: the START whose device sections the tuned config gets (default
         ``start``; a served rig's: with ``auto`` ports).
+    :param before_verify: called before the tuned loop runs (at a rig: asks the person to
+        take the link and move it gently while it runs).
     """
     rep = BringupReport()
     t0 = time.monotonic()
@@ -154,14 +159,23 @@ def bringup(start: RigStart, out: str | Path, fix: bool = False,
         result = tune(ident, base_controller)
         rep.tuning = dict(result.report)
         rep.steps_s["tune"] = time.monotonic() - ts
+        step = "verify"
+        ts = time.monotonic()
+        if before_verify is not None:
+            before_verify()
+        checked = verify(started, result.controller, overrides)
+        rep.verify = checked.to_dict()
+        if checked.log_path:
+            rep.logs.append(str(checked.log_path))
+        rep.steps_s["verify"] = time.monotonic() - ts
         mapping = tuned_mapping(tuned_start or start, result.controller, overrides)
         header = ("# Tuned by `capstan rig bringup` from " + str(start.source) + "; every plant value and gain\n"
                   "# below was measured or chosen on this rig. Provenance:\n")
         prov = {"date": cal.evidence.get("date"), "logs": rep.logs, "check": rep.check,
                 "corrections": rep.fixes, "calibration": cal.evidence, "identification": rep.identification,
-                "excitation": excitation, "tuning": rep.tuning}
+                "excitation": excitation, "tuning": rep.tuning, "verify": rep.verify}
         rep.out = str(write_atomic(out, mapping, header + provenance_comment(prov)))
-        rep.ok, rep.step = True, "tune"
+        rep.ok, rep.step = True, "verify"
     except BringupStop as exc:
         rep.step, rep.reason = exc.step or step, exc.reason
         log.error("bring-up stopped in %s: %s", rep.step, exc.reason)
