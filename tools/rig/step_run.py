@@ -36,7 +36,7 @@ log = logging.getLogger("capstan.rig")
 SENSOR_TIMEOUT_S = 0.05
 #: a move that a host stall stopped (the daemon's own diagnosis: its loop got no CPU, so the
 #: drive's heartbeat or a sensor looked lost) is repeated from rest; this many attempts in all
-HOST_STALL_TRIES = 2
+HOST_STALL_TRIES = 3
 
 
 class Profile(Protocol):
