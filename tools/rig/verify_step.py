@@ -35,6 +35,7 @@ from capstan.controller.runtime.daemon import Daemon
 from capstan.controller.runtime.run_summary import Phase
 from capstan.models.common.errors import CapstanError, ControlFaultError, DriverError
 from capstan.tools.rig.start_config import BringupStop, RigStart
+from capstan.tools.rig.step_run import HOST_STALL_TRIES
 from capstan.tools.rig.tuned import tuned_mapping
 
 log = logging.getLogger("capstan.rig")
@@ -100,14 +101,19 @@ def verify(start: RigStart, controller: Mapping[str, Any], overrides: Mapping[st
 
     cfg = DaemonConfig.from_mapping(verify_mapping(start, controller, overrides), source=start.source)
     Path(cfg.logging.dir).mkdir(parents=True, exist_ok=True)
-    daemon = Daemon(cfg)
-    try:
-        daemon.run(duration_s=duration_s)
-    except ControlFaultError as exc:
-        raise BringupStop("verify", f"the tuned loop faulted: {exc.reason} (torque zero, drive disabled; log "
-                                    f"{daemon.summary.log_path}); no tuned config written") from None
-    except (DriverError, CapstanError) as exc:
-        raise BringupStop("verify", f"{type(exc).__name__}: {exc} (torque zero); no tuned config written") from None
+    for attempt in range(1, HOST_STALL_TRIES + 1):
+        daemon = Daemon(cfg)
+        try:
+            daemon.run(duration_s=duration_s)
+            break
+        except ControlFaultError as exc:
+            text = (f"the tuned loop faulted: {exc.reason} (torque zero, drive disabled; log "
+                    f"{daemon.summary.log_path}); no tuned config written")
+            if "host stall" not in exc.reason or attempt == HOST_STALL_TRIES:
+                raise BringupStop("verify", text) from None
+            log.warning("verify: %s; run again (attempt %d of %d)", text, attempt + 1, HOST_STALL_TRIES)
+        except (DriverError, CapstanError) as exc:
+            raise BringupStop("verify", f"{type(exc).__name__}: {exc} (torque zero); no tuned config written") from None
     s = daemon.summary
     felt = np.zeros(0)
     if s.log_path:
