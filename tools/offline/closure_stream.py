@@ -9,6 +9,7 @@ Memory: a task holds one run; the driver holds the windows' budget and the closu
 
 from __future__ import annotations
 
+import logging
 import os
 import tempfile
 from contextlib import contextmanager
@@ -121,7 +122,7 @@ class DaskMapper:
             self.client = Client(address, timeout=timeout_s)
         else:
             self.cluster = LocalCluster(n_workers=max(1, workers or 1), threads_per_worker=1, processes=True,
-                                        dashboard_address=None)
+                                        dashboard_address=None, silence_logs=logging.WARNING)
             self.client = Client(self.cluster)
 
     def __call__(self, fn: Callable[..., Any], args: Sequence[tuple]) -> list:
