@@ -161,6 +161,10 @@ def test_a_real_dask_cluster_gives_the_single_process_result(runs: list[str], da
     print(f"two closures in {time.perf_counter() - t0:.1f} s")
     assert one["streamed"]["window_samples"]["train"] < one["streamed"]["samples"]["train"]
     assert [s["effect"] for s in dsk["selected"]] == [s["effect"] for s in one["selected"]]
-    assert dsk["streamed"] == one["streamed"]
-    assert dsk["final"] == one["final"]
+    # the same model simulated on another process: equal up to float rounding (BLAS sums
+    # depend on the arrays' alignment), the claim is float rounding, the tolerance 1e-12
+    for key in ("v_rest_rad_s", "samples", "window_samples"):
+        assert dsk["streamed"][key] == one["streamed"][key]
+    assert dsk["streamed"]["every_sample"] == pytest.approx(one["streamed"]["every_sample"], rel=1e-12)
+    assert dsk["final"] == pytest.approx(one["final"], rel=1e-12)
     assert dsk["streamed"]["every_sample"]["held_out_samples"] == 15000
