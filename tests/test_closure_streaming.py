@@ -26,7 +26,7 @@ from capstan.models.closure.signals import signals_from_tables
 from capstan.models.closure.streaming import ScoreSums, concat, rest_threshold, run_windows, velocity_sample
 from capstan.models.common.measurement_table import write_table
 from capstan.tools.bench.closure import synthetic_run
-from capstan.tools.offline.closure_stream import (DaskMapper, Piece, close_streamed, in_process, pieces,
+from capstan.tools.offline.closure_stream import (DaskMapper, close_streamed, in_process, pieces,
                                                   replace_files)
 from capstan.tools.offline.run_inputs import load_runs
 
@@ -168,3 +168,38 @@ def test_a_real_dask_cluster_gives_the_single_process_result(runs: list[str], da
     assert dsk["streamed"]["every_sample"] == pytest.approx(one["streamed"]["every_sample"], rel=1e-12)
     assert dsk["final"] == pytest.approx(one["final"], rel=1e-12)
     assert dsk["streamed"]["every_sample"]["held_out_samples"] == 15000
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_job_is_replaced_and_the_result_is_right(runs: list[str], dask_cluster: str,
+                                                                     long_path: None) -> None:
+    """The worker process is killed (SIGKILL) while the job's first pass is running: its nanny
+    starts a new one, Dask runs the lost tasks again, and the closure is that of the single
+    process."""
+    import signal
+    import threading
+
+    from dask.distributed import Client
+
+    train, test = pieces(runs[:2], runs[2:], None, 0.7)
+    ref = close_streamed(train, test, in_process, train_samples=12000, test_samples=8000)
+    mapper = DaskMapper(address=dask_cluster)
+    out: dict = {}
+    job = threading.Thread(target=lambda: out.update(r=close_streamed(train, test, mapper, train_samples=12000,
+                                                                      test_samples=8000)))
+    try:
+        with Client(dask_cluster, timeout=30) as watch:
+            pid = next(iter(watch.run(os.getpid).values()))
+            job.start()
+            deadline = time.monotonic() + 60
+            while not any(watch.processing().values()) and time.monotonic() < deadline:
+                time.sleep(0.005)
+            assert job.is_alive(), "the job ended before a task ran on the worker"
+            os.kill(pid, signal.SIGKILL)
+        job.join(timeout=600)
+        assert not job.is_alive()
+    finally:
+        mapper.close()
+    res = out["r"]
+    assert _selected(res.result) == _selected(ref.result)
+    assert res.every_sample[1].rmse_Nm == pytest.approx(ref.every_sample[1].rmse_Nm, rel=1e-12)

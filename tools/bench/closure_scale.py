@@ -5,7 +5,8 @@ and of the whole process tree (driver + Dask scheduler + workers, sampled every 
 selections and the held-out RMSE on every sample.
 
 ``python -m capstan.tools.bench.closure_scale --hours 1 2 --workers 0 1 2`` (0 workers: the
-tasks in the driver's process, one run at a time). The data are the runs of
+tasks in the driver's process, one run at a time; -1: not streamed, every sample in memory as
+``capstan close`` without ``--stream``, for the selections). The data are the runs of
 :func:`capstan.tools.bench.closure.synthetic_run` (the testbed plant with a friction that grows
 along the angle), ``--piece-minutes`` long each as a rig's rotated log files, each with its
 own seed, synthesised inside the task that reads it (no disk; the first 70 % of the pieces
@@ -73,12 +74,38 @@ class TreeRss:
         return self.peak_B
 
 
+def in_memory(hours: float, piece_minutes: float) -> dict:
+    """The same pieces closed in memory (``capstan close`` without ``--stream``), for the selections."""
+    from capstan.models.closure.pipeline import close
+    from capstan.models.closure.signals import signals_from_tables
+
+    n, k = _pieces(hours, piece_minutes)
+    t0 = time.perf_counter()
+    sig = signals_from_tables([SyntheticPiece(piece_minutes, seed).table() for seed in range(n)])
+    res = close(sig.take(sig.run_id < k), sig.take(sig.run_id >= k))
+    main = next(iter(res.targets.values()))
+    return {"hours": hours, "workers": "in memory", "pieces": n, "samples": {"train": 0, "test": len(sig)},
+            "wall_s": time.perf_counter() - t0, "cluster_start_s": 0.0, "timings_s": res.timings_s,
+            "driver_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3,
+            "tree_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3,
+            "selected": [c.effect for c in main.selected], "window_samples": "every sample",
+            "rmse_every_sample_Nm": (main.rmse_before_Nm, main.rmse_after_Nm)}
+
+
+def _pieces(hours: float, piece_minutes: float) -> tuple[int, int]:
+    """(pieces, training pieces: the first 70 %)."""
+    n = max(2, int(round(60.0 * hours / piece_minutes)))
+    return n, max(1, min(n - 1, int(round(0.7 * n))))
+
+
 def one_case(hours: float, workers: int, piece_minutes: float) -> dict:
-    """Close ``hours`` of synthetic pieces with ``workers`` Dask workers (0: in process)."""
+    """Close ``hours`` of synthetic pieces with ``workers`` Dask workers (0: in process; -1:
+    every sample in memory, not streamed)."""
     from capstan.tools.offline.closure_stream import DaskMapper, Piece, close_streamed, in_process
 
-    n = max(2, int(round(60.0 * hours / piece_minutes)))
-    k = max(1, min(n - 1, int(round(0.7 * n))))
+    if workers < 0:
+        return in_memory(hours, piece_minutes)
+    n, k = _pieces(hours, piece_minutes)
     srcs = [Piece(SyntheticPiece(piece_minutes, seed)) for seed in range(n)]
     rss = TreeRss()
     t0 = time.perf_counter()
@@ -122,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ts = r["timings_s"]
             rm = r["rmse_every_sample_Nm"]
             print(f"{h:4.1f} h {r['samples']['train'] + r['samples']['test']:9d} samples ({r['pieces']} pieces), "
-                  f"{w} workers: wall {r['wall_s']:6.1f} s (cluster start {r['cluster_start_s']:.1f} s; closure on "
+                  f"{w if w >= 0 else 'no'} workers{'' if w >= 0 else ' (in memory)'}: wall {r['wall_s']:6.1f} s (cluster start {r['cluster_start_s']:.1f} s; closure on "
                   f"windows: baseline {ts.get('baseline', 0):.1f}, candidates {ts.get('candidates', 0):.1f} s)  "
                   f"peak RSS driver {r['driver_rss_MB']:6.0f} MB, all processes {r['tree_rss_MB']:6.0f} MB  "
                   f"windows {r['window_samples']}  selected {r['selected']}  every held-out sample RMSE "
