@@ -4,8 +4,8 @@ from, each computed on one run (one log file, or the head or tail of a split run
 A streamed closure (:mod:`capstan.tools.offline.closure_stream` runs it, in one process or
 as Dask tasks) passes over the runs three times, holding one run at a time:
 
-1. *rest threshold* -- every run's absolute output velocity, sampled (every k-th sample, at
-   most ``VELOCITY_SAMPLES`` per run), pooled: the threshold of the dwell signals is the one
+1. *rest threshold* -- every run's absolute output velocity, sampled (every k-th sample, an
+   equal share of ``VELOCITY_SAMPLES`` per run), pooled: the threshold of the dwell signals is the one
    :func:`capstan.models.closure.signals.signals_from_tables` takes from all runs at once
    (exact when the samples hold every sample; else within the 95th percentile's sampling
    noise);
@@ -39,8 +39,8 @@ from capstan.models.closure.signals import REST_FLOOR_RAD_S, REST_FRACTION, Sign
 #: training / held-out samples the closure's fits and scores see in all (over every run)
 TRAIN_SAMPLES = 400_000
 TEST_SAMPLES = 200_000
-#: samples of |dq_out| per run for the pooled rest threshold
-VELOCITY_SAMPLES = 200_000
+#: samples of |dq_out| over all runs for the pooled rest threshold (each run an equal share)
+VELOCITY_SAMPLES = 2_000_000
 
 
 def velocity_sample(sig: Signals, max_samples: int = VELOCITY_SAMPLES) -> np.ndarray:

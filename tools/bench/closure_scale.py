@@ -121,7 +121,7 @@ def one_case(hours: float, workers: int, piece_minutes: float) -> dict:
     main = next(iter(out.result.targets.values()))
     b, f = out.every_sample if out.every_sample else (None, None)
     return {"hours": hours, "workers": workers, "pieces": n, "samples": out.samples, "wall_s": wall,
-            "cluster_start_s": t1 - t0, "timings_s": out.result.timings_s,
+            "cluster_start_s": t1 - t0, "timings_s": out.result.timings_s, "passes_s": out.timings_s,
             "driver_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3, "tree_rss_MB": tree / 1e6,
             "selected": [c.effect for c in main.selected], "window_samples": out.window_samples,
             "rmse_every_sample_Nm": None if f is None else (b.rmse_Nm, f.rmse_Nm)}
@@ -153,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"windows: baseline {ts.get('baseline', 0):.1f}, candidates {ts.get('candidates', 0):.1f} s)  "
                   f"peak RSS driver {r['driver_rss_MB']:6.0f} MB, all processes {r['tree_rss_MB']:6.0f} MB  "
                   f"windows {r['window_samples']}  selected {r['selected']}  every held-out sample RMSE "
-                  f"{rm[0]:.4f} -> {rm[1]:.4f} Nm  load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+                  f"{rm[0]:.4f} -> {rm[1]:.4f} Nm  passes {json.dumps({k: round(v, 1) for k, v in r.get('passes_s', {}).items()})}  load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     return 0
 
 

@@ -12,8 +12,9 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+import time
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
@@ -23,7 +24,7 @@ from capstan.models.closure import windows
 from capstan.models.closure.identification import ModelKind
 from capstan.models.closure.pipeline import ClosureResult, Progress, close, split_single
 from capstan.models.closure.signals import Signals, signals_from_tables
-from capstan.models.closure.streaming import (TEST_SAMPLES, TRAIN_SAMPLES, FinalModel, ScoreSums, concat,
+from capstan.models.closure.streaming import (TEST_SAMPLES, TRAIN_SAMPLES, VELOCITY_SAMPLES, FinalModel, ScoreSums, concat,
                                               rest_threshold, run_windows, velocity_sample)
 from capstan.models.common.errors import DataFormatError
 from capstan.models.common.measurement_table import MeasurementTable
@@ -57,7 +58,7 @@ class LogFile:
 class Piece:
     """A run, or its contiguous training head / held-out tail (``part``: all, head, tail)."""
 
-    source: Any
+    source: RunSource
     part: str = "all"
     train_fraction: float = 0.7
 
@@ -75,12 +76,12 @@ class Piece:
 
 # -- the tasks (module-level functions: Dask pickles them by name) ---------------------------
 
-def task_velocity(piece: Piece) -> tuple[np.ndarray, int, str | None]:
-    """(sampled |dq_out|, samples of the whole run, the run's attribution or None)."""
+def task_velocity(piece: Piece, max_samples: int) -> tuple[np.ndarray, int, str | None]:
+    """(|dq_out| of at most ``max_samples``, samples of the whole run, the run's attribution or None)."""
     tb = piece.source.table()
     sig = signals_from_tables([tb])
     att = tb.meta.get("attribution")
-    return velocity_sample(sig), len(sig), None if att is None else str(att)
+    return velocity_sample(sig, max_samples), len(sig), None if att is None else str(att)
 
 
 def task_windows(piece: Piece, v_rest_rad_s: float, share: int, window_s: float) -> tuple[Signals, int, str]:
@@ -159,6 +160,8 @@ class StreamedClosure:
     window_samples: dict[str, int]
     #: (baseline, final model) sums on every held-out sample; None with the static baseline
     every_sample: tuple[ScoreSums, ScoreSums] | None
+    #: wall time of each pass [s]: velocity, windows, closure (on the windows), scores
+    timings_s: dict[str, float] = field(default_factory=dict)
 
     def summary_keys(self) -> dict[str, Any]:
         """The ``streamed`` entry of the closure's JSON summary."""
@@ -202,10 +205,12 @@ def close_streamed(train: list[Piece], test: list[Piece], mapper: Mapper = in_pr
     """
     if not train or not test:
         raise DataFormatError("the streamed closure needs training and held-out runs")
-    runs: dict[Any, Piece] = {}
+    runs: dict[RunSource, Piece] = {}
     for p in train + test:
         runs.setdefault(p.source, Piece(p.source))
-    vel = mapper(task_velocity, [(p,) for p in runs.values()])
+    t0 = time.perf_counter()
+    vel = mapper(task_velocity, [(p, max(1000, VELOCITY_SAMPLES // len(runs))) for p in runs.values()])
+    t1 = time.perf_counter()
     v_rest = rest_threshold([v for v, _, _ in vel])
     attributions = sorted({a for _, _, a in vel if a is not None})
     share_tr = max(2, train_samples // len(train))
@@ -213,8 +218,10 @@ def close_streamed(train: list[Piece], test: list[Piece], mapper: Mapper = in_pr
     w_s = windows.WINDOW_S if window_s is None else window_s
     wins = mapper(task_windows, [(p, v_rest, share_tr, w_s) for p in train] + [(p, v_rest, share_te, w_s) for p in test])
     tr, te = wins[:len(train)], wins[len(train):]
+    t2 = time.perf_counter()
     res = close(concat([w for w, _, _ in tr]), concat([w for w, _, _ in te]), kind, progress=progress,
                 dynamic=dynamic)
+    t3 = time.perf_counter()
     every = None
     ds = res.dynamic
     if ds is not None and ds.final is not None:
@@ -223,7 +230,9 @@ def close_streamed(train: list[Piece], test: list[Piece], mapper: Mapper = in_pr
         every = (sum((b for b, _ in sums), ScoreSums()), sum((f for _, f in sums), ScoreSums()))
     return StreamedClosure(res, [n for _, _, n in tr], [n for _, _, n in te], attributions, v_rest,
                            {"train": sum(n for _, n, _ in tr), "test": sum(n for _, n, _ in te)},
-                           {"train": sum(len(w) for w, _, _ in tr), "test": sum(len(w) for w, _, _ in te)}, every)
+                           {"train": sum(len(w) for w, _, _ in tr), "test": sum(len(w) for w, _, _ in te)}, every,
+                           {"velocity": t1 - t0, "windows": t2 - t1, "closure": t3 - t2,
+                            "scores": time.perf_counter() - t3})
 
 
 @contextmanager
