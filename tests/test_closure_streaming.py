@@ -58,6 +58,8 @@ def test_pieces_combine_exactly(runs: list[str]) -> None:
     assert 3000 <= len(w) <= 4000 and len(w) < len(parts[0])
     assert np.all(np.isin(w.t_s, parts[0].t_s))
     assert len(run_windows(parts[0], 10 ** 9)) == len(parts[0])
+    one = run_windows(parts[0], 2000, 2.0, phase=0.5)      # one window, half-way through the run
+    assert len(one) == 2000 and one.t_s[0] == pytest.approx(0.5 * (parts[0].t_s[-1] - 2.0), abs=0.01)
     rng = np.random.default_rng(1)
     pred = [p.tau_out_Nm + 0.1 * rng.standard_normal(len(p)) for p in parts]
     total = sum((ScoreSums.of(p.tau_out_Nm, q) for p, q in zip(parts, pred)), ScoreSums())

@@ -11,7 +11,7 @@ as Dask tasks) passes over the runs three times, holding one run at a time:
    noise);
 2. *windows* -- each run's signals derived at the full rate with that threshold (derivatives,
    dwell states: as in memory), then cut to contiguous windows
-   (:func:`capstan.models.closure.windows.window_index`), each run's share of a fixed budget
+   spread through the run from a phase of its own, each run's share of a fixed budget
    (``TRAIN_SAMPLES`` / ``TEST_SAMPLES`` over all runs). The closure
    (:func:`capstan.models.closure.pipeline.close`, unchanged) runs on the concatenated
    windows: its fits and held-out scores see at most the budget, whatever the total length;
@@ -61,13 +61,33 @@ def rest_threshold(samples: list[np.ndarray]) -> float:
     return max(REST_FLOOR_RAD_S, REST_FRACTION * float(np.percentile(v, 95)))
 
 
-def run_windows(sig: Signals, share: int, window_s: float | None = None) -> Signals:
-    """Contiguous windows of one run's signals, ``share`` samples in all (every sample when
-    the run is not longer).
+def run_windows(sig: Signals, share: int, window_s: float | None = None, phase: float = 0.0) -> Signals:
+    """Contiguous windows of one run's signals, ``share`` samples in all, ``window_s`` long
+    (default ``windows.WINDOW_S``), spread evenly through the run from ``phase`` (a fraction of
+    the run's length: give each run another, e.g. :func:`run_phase`, so that when the share
+    holds few windows they do not all sit at the runs' starts); every sample when the run is
+    not longer than ``share``.
 
     :raises ValueError: if ``share`` or ``window_s`` is not positive.
     """
-    return sig.take(windows.window_index(sig, share, window_s))
+    window_s = windows.WINDOW_S if window_s is None else window_s
+    if share <= 0 or not window_s > 0.0:
+        raise ValueError(f"run_windows: share {share} and window_s {window_s} must be > 0")
+    n = len(sig)
+    if n <= share:
+        return sig
+    dt = float(np.median(np.diff(sig.t_s)))
+    length = max(2, int(round(window_s / max(dt, 1e-9))))
+    count = max(1, int(round(share / length)))
+    w = max(2, share // count)
+    first = np.sort(((phase + np.arange(count) / count) % 1.0 * (n - w)).astype(np.int64))
+    return sig.take(np.unique((first[:, None] + np.arange(w)[None, :]).ravel()))
+
+
+def run_phase(index: int) -> float:
+    """The window phase of the ``index``-th run: the golden-ratio sequence (evenly spread for any
+    number of runs)."""
+    return float((index * 0.6180339887498949) % 1.0)
 
 
 def concat(parts: list[Signals]) -> Signals:

@@ -25,7 +25,7 @@ from capstan.models.closure.identification import ModelKind
 from capstan.models.closure.pipeline import ClosureResult, Progress, close, split_single
 from capstan.models.closure.signals import Signals, signals_from_tables
 from capstan.models.closure.streaming import (TEST_SAMPLES, TRAIN_SAMPLES, VELOCITY_SAMPLES, FinalModel, ScoreSums, concat,
-                                              rest_threshold, run_windows, velocity_sample)
+                                              rest_threshold, run_phase, run_windows, velocity_sample)
 from capstan.models.common.errors import DataFormatError
 from capstan.models.common.measurement_table import MeasurementTable
 
@@ -84,13 +84,15 @@ def task_velocity(piece: Piece, max_samples: int) -> tuple[np.ndarray, int, str 
     return velocity_sample(sig, max_samples), len(sig), None if att is None else str(att)
 
 
-def task_windows(piece: Piece, v_rest_rad_s: float, share: int, window_s: float) -> tuple[Signals, int, str]:
-    """(the piece's windows of ``window_s`` [s], ``share`` samples in all; its samples; its name)."""
+def task_windows(piece: Piece, v_rest_rad_s: float, share: int, window_s: float,
+                 phase: float) -> tuple[Signals, int, str]:
+    """(the piece's windows of ``window_s`` [s] from ``phase``, ``share`` samples in all; its
+    samples; its name)."""
     sig = piece.signals(v_rest_rad_s)
     name = sig.names[0] if sig.names else str(piece.source)
     if piece.part != "all":
         name = f"{name} [{piece.part}, t {sig.t_s[0]:.3f}-{sig.t_s[-1]:.3f} s]"
-    return run_windows(sig, share, window_s), len(sig), name
+    return run_windows(sig, share, window_s, phase), len(sig), name
 
 
 def task_scores(piece: Piece, v_rest_rad_s: float, model: FinalModel) -> tuple[ScoreSums, ScoreSums]:
@@ -216,7 +218,8 @@ def close_streamed(train: list[Piece], test: list[Piece], mapper: Mapper = in_pr
     share_tr = max(2, train_samples // len(train))
     share_te = max(2, test_samples // len(test))
     w_s = windows.WINDOW_S if window_s is None else window_s
-    wins = mapper(task_windows, [(p, v_rest, share_tr, w_s) for p in train] + [(p, v_rest, share_te, w_s) for p in test])
+    wins = mapper(task_windows, [(p, v_rest, share_tr, w_s, run_phase(i)) for i, p in enumerate(train)]
+                  + [(p, v_rest, share_te, w_s, run_phase(i)) for i, p in enumerate(test)])
     tr, te = wins[:len(train)], wins[len(train):]
     t2 = time.perf_counter()
     res = close(concat([w for w, _, _ in tr]), concat([w for w, _, _ in te]), kind, progress=progress,
