@@ -172,21 +172,23 @@ def _close_in_memory(args: argparse.Namespace) -> tuple[ClosureResult, list[str]
 def _close_streamed(args: argparse.Namespace) -> StreamedClosure:
     """The streamed closure (``--stream``, ``--workers N``, ``--scheduler ADDRESS``).
 
-    :raises DataFormatError: if a run cannot be read, the split is impossible or the options conflict.
+    :raises DataFormatError: if a run cannot be read or the split is impossible.
+    :raises UsageError: if the options conflict or the scheduler cannot be reached.
     """
+    from capstan.models.common.errors import UsageError
     from capstan.models.closure.identification import ModelKind
     from capstan.models.closure.streaming import TEST_SAMPLES, TRAIN_SAMPLES
     from capstan.tools.offline.closure_stream import DaskMapper, close_streamed, in_process, pieces
     from capstan.tools.offline.progress import Progress
 
     if args.workers is not None and args.scheduler:
-        raise DataFormatError("give --workers N (a local cluster) or --scheduler ADDRESS (an existing one), not both")
+        raise UsageError("give --workers N (a local cluster) or --scheduler ADDRESS (an existing one), not both")
     if args.workers is not None and args.workers < 1:
-        raise DataFormatError(f"--workers must be >= 1, got {args.workers}")
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
     for key in ("train_samples", "test_samples"):
         val = getattr(args, key)
         if val is not None and val < 1000:
-            raise DataFormatError(f"--{key.replace('_', '-')} must be >= 1000, got {val}")
+            raise UsageError(f"--{key.replace('_', '-')} must be >= 1000, got {val}")
     train, test = pieces(args.train, args.test, args.import_desc, args.train_fraction)
     mapper = DaskMapper(args.workers, args.scheduler) if args.workers is not None or args.scheduler else None
     bar = Progress("close", enabled=args.progress)

@@ -26,7 +26,7 @@ from capstan.models.closure.pipeline import ClosureResult, Progress, close, spli
 from capstan.models.closure.signals import Signals, signals_from_tables
 from capstan.models.closure.streaming import (TEST_SAMPLES, TRAIN_SAMPLES, VELOCITY_SAMPLES, FinalModel, ScoreSums, concat,
                                               rest_threshold, run_phase, run_windows, velocity_sample)
-from capstan.models.common.errors import DataFormatError
+from capstan.models.common.errors import DataFormatError, UsageError
 from capstan.models.common.measurement_table import MeasurementTable
 
 #: times Dask runs a task again after its worker died or it raised (then the job fails with the reason)
@@ -114,7 +114,7 @@ class DaskMapper:
     """Run the tasks on a Dask cluster: ``workers`` local worker processes
     (``distributed.LocalCluster``, one thread each), or the scheduler at ``address``.
 
-    :raises OSError: if the scheduler cannot be reached.
+    :raises UsageError: if the scheduler cannot be reached.
     """
 
     def __init__(self, workers: int | None = None, address: str | None = None, timeout_s: float = 30.0) -> None:
@@ -122,7 +122,11 @@ class DaskMapper:
 
         self.cluster = None
         if address:
-            self.client = Client(address, timeout=timeout_s)
+            try:
+                self.client = Client(address, timeout=timeout_s)
+            except OSError as exc:
+                raise UsageError(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s "
+                                 f"({exc})") from exc
         else:
             self.cluster = LocalCluster(n_workers=max(1, workers or 1), threads_per_worker=1, processes=True,
                                         dashboard_address=None, silence_logs=logging.WARNING)
