@@ -14,7 +14,11 @@ loop with measured data (see :mod:`capstan.models.closure.pipeline`).
    bootstrap; 6. write ``DIR/report.md`` + PNGs and ``DIR/closure.json``; 7. write the
    augmented model as ``DIR/effects.yaml`` (controller config fragment).
 
-A progress bar is drawn on stderr when the closure takes long.
+A progress bar is drawn on stderr when the closure takes long. ``--stream`` bounds the
+memory (runs read one at a time, the selection on windows of a fixed budget, the final
+model scored on every held-out sample); ``--workers N`` runs each run as a task on a local
+Dask cluster, ``--scheduler ADDRESS`` on an existing one (docs/closure-at-scale.md). The
+outputs are written to a temporary directory beside DIR and each moved into DIR whole.
 """
 
 from __future__ import annotations
@@ -23,7 +27,13 @@ import argparse
 import json
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 from capstan.models.common.errors import DataFormatError
+
+if TYPE_CHECKING:
+    from capstan.models.closure.pipeline import ClosureResult
+    from capstan.tools.offline.closure_stream import StreamedClosure
 
 HELP = "close the model loop: residual -> missing effect -> before/after report"
 
@@ -44,6 +54,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="show a progress bar (default: yes)")
+    parser.add_argument("--stream", action="store_true",
+                        help="bounded memory: read the runs one at a time, close on windows of a fixed budget, score "
+                             "the final model on every held-out sample (docs/closure-at-scale.md)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="stream with each run a task on a local Dask cluster of N worker processes")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="stream with each run a task on the existing Dask scheduler at ADDRESS (tcp://host:port)")
+    parser.add_argument("--train-samples", type=int, default=None,
+                        help="streamed: training samples of the windows over all runs (default 400000)")
+    parser.add_argument("--test-samples", type=int, default=None,
+                        help="streamed: held-out samples of the windows over all runs (default 200000)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,46 +73,30 @@ def run(args: argparse.Namespace) -> int:
     :raises DataFormatError: if a run cannot be read or the split is impossible.
     :raises ModelError: if the baseline cannot be fitted.
     """
-    from capstan.models.closure.pipeline import close, split_single
     from capstan.models.closure.effects import FeatureContext
-    from capstan.models.closure.identification import ModelKind
-    from capstan.models.closure.signals import signals_from_tables
     from capstan.tools.offline.closure_report import fragment, summary, write_fragment, write_report
-    from capstan.tools.offline.progress import Progress
-    from capstan.tools.offline.run_inputs import load_runs
+    from capstan.tools.offline.closure_stream import replace_files
 
     if not 0.1 <= args.train_fraction <= 0.9:
         raise DataFormatError(f"--train-fraction must be within [0.1, 0.9], got {args.train_fraction}")
-    train_t = load_runs(args.train, args.import_desc)
-    test_t = load_runs(args.test, args.import_desc) if args.test else []
-    sig = signals_from_tables(train_t + test_t)
-    if test_t:
-        train = sig.take(sig.run_id < len(train_t))
-        test = sig.take(sig.run_id >= len(train_t))
-        train_names, test_names = [t.source for t in train_t], [t.source for t in test_t]
+    streamed = None
+    if args.stream or args.workers is not None or args.scheduler:
+        streamed = _close_streamed(args)
+        res, train_names, test_names = streamed.result, streamed.train_names, streamed.test_names
+        attributions = streamed.attributions
     else:
-        if len(train_t) != 1:
-            raise DataFormatError("without --test give exactly one run (it is split into contiguous blocks), "
-                                  "or name held-out runs with --test")
-        train, test = split_single(sig, args.train_fraction)
-        n = len(sig)
-        k = int(round(args.train_fraction * n))
-        src = train_t[0].source
-        train_names = [f"{src} [t {sig.t_s[0]:.3f}-{sig.t_s[k - 1]:.3f} s]"]
-        test_names = [f"{src} [t {sig.t_s[k]:.3f}-{sig.t_s[-1]:.3f} s]"]
-    bar = Progress("close", enabled=args.progress)
-    res = close(train, test, ModelKind.parse(args.model), progress=lambda d, t, _l: bar.update(d, t),
-                dynamic=args.baseline == "dynamic")
-    bar.done()
+        res, train_names, test_names, attributions = _close_in_memory(args)
     summ = summary(res, train_names, test_names, args.model)
+    if streamed is not None:
+        summ["streamed"] = streamed.summary_keys()
     outdir = Path(args.report)
-    outdir.mkdir(parents=True, exist_ok=True)
     ctx = FeatureContext.from_train(res.train, res.baseline)
     frag = fragment(res, args.model, ctx.refs, ctx.q_ref_rad)
-    write_fragment(frag, outdir / "effects.yaml")
-    attributions = sorted({str(t.meta["attribution"]) for t in train_t + test_t if "attribution" in t.meta})
-    report = write_report(res, summ, outdir, attributions)
-    (outdir / "closure.json").write_text(json.dumps(summ, indent=1, default=float))
+    with replace_files(outdir) as tmp:      # each output appears whole, once the closure is done
+        write_fragment(frag, tmp / "effects.yaml")
+        write_report(res, summ, tmp, attributions)
+        (tmp / "closure.json").write_text(json.dumps(summ, indent=1, default=float))
+    report = outdir / "report.md"
     if args.json:
         print(json.dumps(summ, default=float))
         return 0
@@ -117,5 +122,82 @@ def run(args: argparse.Namespace) -> int:
     if "elastic" in summ:
         e = summ["elastic"]
         print(f"elastic path RMSE {e['baseline_rmse_Nm']:.4g} -> {e['final_rmse_Nm']:.4g} Nm")
+    every = summ.get("streamed", {}).get("every_sample")
+    if every:
+        print(f"every held-out sample ({every['held_out_samples']}): RMSE {every['baseline_rmse_Nm']:.4g} -> "
+              f"{every['final_rmse_Nm']:.4g} Nm, max {every['baseline_max_err_Nm']:.4g} -> "
+              f"{every['final_max_err_Nm']:.4g} Nm (the selection ran on "
+              f"{summ['streamed']['window_samples']['train']} + {summ['streamed']['window_samples']['test']} "
+              "samples of windows)")
     print(f"report: {report}   fragment: {outdir / 'effects.yaml'}")
     return 0
+
+
+def _close_in_memory(args: argparse.Namespace) -> tuple[ClosureResult, list[str], list[str], list[str]]:
+    """The closure with every run in memory: (result, training names, held-out names, attributions).
+
+    :raises DataFormatError: if a run cannot be read or the split is impossible.
+    """
+    from capstan.models.closure.identification import ModelKind
+    from capstan.models.closure.pipeline import close, split_single
+    from capstan.models.closure.signals import signals_from_tables
+    from capstan.tools.offline.progress import Progress
+    from capstan.tools.offline.run_inputs import load_runs
+
+    train_t = load_runs(args.train, args.import_desc)
+    test_t = load_runs(args.test, args.import_desc) if args.test else []
+    sig = signals_from_tables(train_t + test_t)
+    if test_t:
+        train = sig.take(sig.run_id < len(train_t))
+        test = sig.take(sig.run_id >= len(train_t))
+        train_names, test_names = [t.source for t in train_t], [t.source for t in test_t]
+    else:
+        if len(train_t) != 1:
+            raise DataFormatError("without --test give exactly one run (it is split into contiguous blocks), "
+                                  "or name held-out runs with --test")
+        train, test = split_single(sig, args.train_fraction)
+        n = len(sig)
+        k = int(round(args.train_fraction * n))
+        src = train_t[0].source
+        train_names = [f"{src} [t {sig.t_s[0]:.3f}-{sig.t_s[k - 1]:.3f} s]"]
+        test_names = [f"{src} [t {sig.t_s[k]:.3f}-{sig.t_s[-1]:.3f} s]"]
+    bar = Progress("close", enabled=args.progress)
+    res = close(train, test, ModelKind.parse(args.model), progress=lambda d, t, _l: bar.update(d, t),
+                dynamic=args.baseline == "dynamic")
+    bar.done()
+    attributions = sorted({str(t.meta["attribution"]) for t in train_t + test_t if "attribution" in t.meta})
+    return res, train_names, test_names, attributions
+
+
+def _close_streamed(args: argparse.Namespace) -> StreamedClosure:
+    """The streamed closure (``--stream``, ``--workers N``, ``--scheduler ADDRESS``).
+
+    :raises DataFormatError: if a run cannot be read or the split is impossible.
+    :raises UsageError: if the options conflict or the scheduler cannot be reached.
+    """
+    from capstan.models.common.errors import UsageError
+    from capstan.models.closure.identification import ModelKind
+    from capstan.models.closure.streaming import TEST_SAMPLES, TRAIN_SAMPLES
+    from capstan.tools.offline.closure_stream import DaskMapper, close_streamed, in_process, pieces
+    from capstan.tools.offline.progress import Progress
+
+    if args.workers is not None and args.scheduler:
+        raise UsageError("give --workers N (a local cluster) or --scheduler ADDRESS (an existing one), not both")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    for key in ("train_samples", "test_samples"):
+        val = getattr(args, key)
+        if val is not None and val < 1000:
+            raise UsageError(f"--{key.replace('_', '-')} must be >= 1000, got {val}")
+    train, test = pieces(args.train, args.test, args.import_desc, args.train_fraction)
+    mapper = DaskMapper(args.workers, args.scheduler) if args.workers is not None or args.scheduler else None
+    bar = Progress("close", enabled=args.progress)
+    try:
+        out = close_streamed(train, test, mapper or in_process, ModelKind.parse(args.model),
+                             args.baseline == "dynamic", args.train_samples or TRAIN_SAMPLES,
+                             args.test_samples or TEST_SAMPLES, progress=lambda d, t, _l: bar.update(d, t))
+    finally:
+        bar.done()
+        if mapper is not None:
+            mapper.close()
+    return out

@@ -54,6 +54,8 @@ class DynamicSetup:
     #: wall time of the stages run on this setup [s] (``trace``; long runs: ``screen``,
     #: ``held-out``, ``joint`` inside the candidates' time)
     timings_s: dict[str, float] = field(default_factory=dict)
+    #: the final model of :func:`close_in_model` (the baseline refitted with the selected effects)
+    final: JointFit | None = None
 
 
 
@@ -302,6 +304,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         pred_t = closer.predict(current)
         res.params_after = {n: float(v) for n, v in zip(names, current.base)}
     res.trace = trace
+    ds.final = current
     res.pred_after = pred_t
     res.rmse_after_Nm = _rmse(yt - pred_t)
     res.max_after_Nm = float(np.max(np.abs(yt - pred_t)))
