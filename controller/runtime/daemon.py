@@ -116,7 +116,8 @@ class Daemon:
         self._stop = True
 
     def run(self, duration_s: float | None = None) -> RunSummary:
-        """Build, start and run the loop until a stop request, ``duration_s`` or a fault.
+        """Build, start and run the loop until a stop request, ``duration_s`` of control (counted
+        from arming) or a fault.
 
         :raises ControlFaultError: a fault was latched (drive disabled, report logged).
         :raises DriverError: a device failed to start (e.g. DeviceTimeoutError at arming).
@@ -161,8 +162,7 @@ class Daemon:
             self.summary.threads = [t.name for t in threading.enumerate()]
             if len(self.summary.threads) > 1:
                 log.info("threads in the loop's process: %s", ", ".join(self.summary.threads))
-            end_ns = None if duration_s is None else time.monotonic_ns() + int(duration_s * 1e9)
-            self._loop(ctl, dev, self.sink, end_ns)
+            self._loop(ctl, dev, self.sink, None if duration_s is None else int(duration_s * 1e9))
         finally:
             if rt is not None:
                 realtime.restore(rt)
@@ -172,7 +172,7 @@ class Daemon:
         return self.summary
 
     # ------------------------------------------------------------------ the loop
-    def _loop(self, ctl: Any, dev: DeviceSet, sink: LogSink, end_ns: int | None) -> None:
+    def _loop(self, ctl: Any, dev: DeviceSet, sink: LogSink, duration_ns: int | None) -> None:
         L = self.cfg.loop
         lim = L.limits
         motor, imu, cells, note = dev.motor, dev.imu, dev.load_cells, self.notifier
@@ -197,6 +197,7 @@ class Daemon:
         streak_fault = L.overrun_streak_fault
         phase = Phase.ARMING
         self.phase = phase
+        end_ns: int | None = None
         arm_cycles = L.arm_on_time_cycles
         on_time = best_on_time = 0
         arm_until_ns = time.monotonic_ns() + int(L.startup_timeout_s * 1e9)
@@ -268,6 +269,8 @@ class Daemon:
                 best_on_time = max(best_on_time, on_time)
                 if on_time >= arm_cycles:
                     phase = self.phase = Phase.RUNNING
+                    if duration_ns is not None:          # the duration is of control: it starts now
+                        end_ns = wake + duration_ns
                     cpu0, wall0 = cpu_snapshot(sink), time.monotonic()
                     note.ready("drive enabled, sensors healthy, loop on time")
                     log.info("armed after %d cycles: drive enabled, sensors healthy, %d cycles on time",
