@@ -31,6 +31,7 @@ from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.dynamic.trace import residual_trace
+from capstan.models.closure.dynamic.uncertainty import ALPHA_NO_EFFECT, EffectUncertainty, effect_uncertainty
 from capstan.models.closure.scoring import (MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, select_winner,
                                            test_blocks)
 from capstan.models.closure.signals import Signals
@@ -114,6 +115,30 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
                 "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep), "rise_max": RISE_MAX, "beta": beta,
                 "beta_plausible": bool(BETA_PLAUSIBLE[0] <= beta <= BETA_PLAUSIBLE[1])}
     return {}
+
+
+def named_uncertainty(jf: JointFit, unc: EffectUncertainty, names: list[str],
+                      refs: Refs) -> tuple[dict[str, float], dict[str, list[float]]]:
+    """(standard error, 95 % bootstrap interval) of each named parameter of ``jf``'s last effect
+    (:func:`_named`, its numeric shape, its raw coefficients ``coef:<name>``), from the
+    linearised block bootstrap of :mod:`.uncertainty`."""
+    eff, shape, _ = jf.effects[-1]
+    keys = [k for k in shape if f"shape:{k}" in unc.names]
+    i_fc = unc.names.index("base:tau_fc_Nm") if "base:tau_fc_Nm" in unc.names else None
+    ic = [unc.names.index(f"coef:{c}") for c in eff.coef_names]
+    draws: dict[str, list[float]] = {}
+    for th in unc.boot:
+        tau_fc = float(th[i_fc]) if i_fc is not None else float(jf.base[names.index("tau_fc_Nm")])
+        sh = {**shape, **{k: float(th[unc.names.index(f"shape:{k}")]) for k in keys}}
+        named = _named(eff, sh, th[ic], tau_fc, refs)
+        named.update({k: sh[k] for k in keys})
+        named.update({f"coef:{c}": float(th[j]) for c, j in zip(eff.coef_names, ic)})
+        for k, v in named.items():
+            if isinstance(v, float) and not isinstance(v, bool):
+                draws.setdefault(k, []).append(v)
+    se = {k: float(np.std(v)) for k, v in draws.items() if np.ptp(v) > 0.0}
+    ci = {k: [float(np.quantile(draws[k], 0.025)), float(np.quantile(draws[k], 0.975))] for k in se}
+    return se, ci
 
 
 def implausible(eff: InModelEffect, coef: np.ndarray) -> str:
@@ -295,6 +320,19 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         if win.implausible:
             # the joint refit left the mechanism's physical range: not an explanation (the
             # round's other candidates are tried again in the next round, from the same model)
+            win.significant = False
+            res.selected.pop()
+            current = prev
+            continue
+        t0 = time.perf_counter()
+        unc = effect_uncertainty(closer, current)
+        _tick(ds, "uncertainty", t0)
+        win.params_stderr, win.params_interval = named_uncertainty(current, unc, names, refs)
+        win.no_effect_p = unc.p_value
+        if unc.no_effect:
+            # "no effect" inside the parameters' 95 % region: a marginal finding, not selected
+            win.no_effect = (f"no effect within the interval: Wald {unc.wald:.3g} on {unc.dof} "
+                             f"coefficient(s), p {unc.p_value:.2g} >= {ALPHA_NO_EFFECT:g}")
             win.significant = False
             res.selected.pop()
             current = prev
