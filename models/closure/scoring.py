@@ -62,6 +62,8 @@ class Candidate:
     #: level at which "no effect" is rejected (NaN: not tested); why it was not selected, else ""
     no_effect_p: float = math.nan
     no_effect: str = ""
+    #: the shape and size of a catalogued slow form in words (:mod:`capstan.models.closure.shape_words`), else ""
+    words: str = ""
 
     def summary(self) -> dict:
         """JSON-able summary."""
@@ -83,6 +85,8 @@ class Candidate:
             d["no_effect"] = self.no_effect
         if self.description:
             d["description"] = self.description["text"]
+        elif self.words:
+            d["description"] = self.words
         return d
 
 

@@ -41,7 +41,7 @@ def summary(res: ClosureResult, train_names: list[str], test_names: list[str], m
         "selected": [{"effect": c.effect, "depends_on": c.depends_on, "target": c.target.name.lower(),
                       "improvement": c.improvement, "params": _selected_params(c),
                       "params_stderr": c.params_stderr, "params_interval": c.params_interval,
-                      "no_effect_p": c.no_effect_p}
+                      "no_effect_p": c.no_effect_p, "description": (c.description or {}).get("text", c.words)}
                      for t in res.targets.values() for c in t.selected],
         "final": {"rmse_Nm": main.rmse_after_Nm, "max_err_Nm": main.max_after_Nm},
         "trace": res.trace,
@@ -258,6 +258,8 @@ def write_report(res: ClosureResult, summ: dict[str, Any], outdir: Path, attribu
         L.append(f"- **{s['effect']}** ({', '.join(s['depends_on'])}, {s['target']}): "
                  f"{s['improvement']:.1%} lower held-out RMSE; "
                  + ", ".join(_with_error(k, v, s.get("params_stderr")) for k, v in s["params"].items()))
+        if s.get("description"):
+            L.append(f"  {s['description']}")
         if s.get("params_interval"):
             L.append("  95 % intervals (linearised block bootstrap over 0.5 s windows): "
                      + ", ".join(f"{k} [{a:.4g}, {b:.4g}]" for k, (a, b) in s["params_interval"].items()

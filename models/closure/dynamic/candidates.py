@@ -98,6 +98,9 @@ DWELL_GRID = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.5, 3.0) for s0 in 
 DWELL_GRID_FINE = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.25, 0.5, 1.0, 2.0, 4.0)
                         for s0 in (0.005, 0.01, 0.02, 0.04, 0.08))
 
+#: time constants of the pretension relaxation tried [s] (refined between neighbours, in_model)
+RELAX_GRID_S = (2.0, 10.0, 50.0, 250.0)
+
 #: plausibility bound of the drive gain's |eps| (a load cell off by more than -23 / +43 % is a
 #: wiring or calibration fault, not an effect to model); a fit at the bound is reported implausible
 GAIN_MAX = 0.3
@@ -239,7 +242,7 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
         InModelEffect("dwell_stiction", ("dwell",), ("A",), (-0.9,), (5.0,), tuple(dwell_grid), dwell),
         InModelEffect("position_friction", ("position",), ("A1", "A2"), (-3.0, -3.0), (3.0, 3.0), ({},), position),
         InModelEffect("pretension_relaxation", ("time",), ("D",), (-0.9,), (5.0,),
-                      tuple({"tau_r_s": t} for t in (2.0, 10.0, 50.0, 250.0)), relax),
+                      tuple({"tau_r_s": t} for t in RELAX_GRID_S), relax),
         InModelEffect("load_friction", ("load",), ("CL",), (-0.9,), (5.0,), ({},), load),
         InModelEffect("speed_viscous", ("velocity",), ("C2_Nms2_rad2",), (0.0,), (math.inf,), ({},), speed),
         InModelEffect("sensor_latency", ("latency",), (), (), (),

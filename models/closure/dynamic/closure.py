@@ -24,7 +24,7 @@ from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
 
 from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
-from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX, RISE_MAX,
+from capstan.models.closure.dynamic.candidates import (_run_time, BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX, RISE_MAX,
                                                        InModelEffect, Refs, catalogue, stiffening_beta,
                                                        stiffening_k_scale)
 from capstan.models.closure.effects import Target, shift_within_runs
@@ -34,6 +34,7 @@ from capstan.models.closure.dynamic.trace import residual_trace
 from capstan.models.closure.dynamic.uncertainty import ALPHA_NO_EFFECT, EffectUncertainty, effect_uncertainty
 from capstan.models.closure.scoring import (MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, select_winner,
                                            test_blocks)
+from capstan.models.closure.shape_words import relaxation_words, support
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
 
@@ -115,6 +116,13 @@ def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, ref
                 "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep), "rise_max": RISE_MAX, "beta": beta,
                 "beta_plausible": bool(BETA_PLAUSIBLE[0] <= beta <= BETA_PLAUSIBLE[1])}
     return {}
+
+
+def catalogue_words(name: str, params: dict[str, float], shape: dict, run_support: tuple[float, float]) -> str:
+    """The shape words of a catalogued slow form (:mod:`capstan.models.closure.shape_words`), "" for the others."""
+    if name == "pretension_relaxation":
+        return relaxation_words(params["d_Nm"], float(shape["tau_r_s"]), run_support)
+    return ""
 
 
 def named_uncertainty(jf: JointFit, unc: EffectUncertainty, names: list[str],
@@ -226,6 +234,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
     remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train), dwell_grid=dwell_grid,
                           gain=offers_gain(ds))
     labels = test_blocks(test)
+    run_support = support(_run_time(train))
     current = JointFit(np.array(list(fit.params.values())))
     yt, pred_t = ds.y_test_Nm, ds.pred_test_Nm
     res = TargetResult(Target.TAU_OUT, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t),
@@ -291,7 +300,10 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                                      f"(< {100 * SCREEN_MIN:.1f} %)")
             else:
                 cand.held_out_samples = len(r_after)
-            cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
+            x_sig = train.signal(eff.depends_on[0]) if eff.depends_on else None
+            cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm,
+                                               support(x_sig) if x_sig is not None else None)
+            cand.words = catalogue_words(eff.name, cand.params, shape, run_support)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)
         res.candidates.extend(tried)
@@ -314,7 +326,10 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             current = closer.refit(prev, weff, wshape, base_free=True)
         if "lag_s" in wshape and not prev.effects:
             current = _refit_realigned(closer, current, weff, wshape)
+        wshape = current.effects[-1][1]
+        win.shape = dict(wshape)
         win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)
+        win.words = catalogue_words(weff.name, win.params, wshape, run_support)
         remaining = [e for e in remaining if e is not weff]
         win.implausible = implausible(weff, current.effects[-1][2])
         if win.implausible:

@@ -12,7 +12,7 @@ correlated over hundreds of samples, so the scores are summed over contiguous ti
 (``BLOCK_S``, never crossing a run) and:
 
 * the covariance is the block sandwich ``A^-1 (sum_b g_b g_b^T) A^-1``, ``A = J^T J``,
-  ``g_b = J_b^T r_b`` (:func:`sandwich`);
+  ``g_b = J_b^T r_b`` centred on their mean (:func:`sandwich`);
 * the bootstrap resamples the windows (``N_BOOT`` draws, with replacement) and takes the
   Gauss-Newton step of each draw, ``-A^-1 sum_drawn g_b``, from the fit: a linearised block
   bootstrap whose draws give the intervals of any function of the parameters (the named
@@ -82,6 +82,9 @@ def sandwich(J: np.ndarray, r: np.ndarray, labels: np.ndarray) -> tuple[np.ndarr
     Ainv = np.linalg.pinv(J.T @ J)
     nb = int(labels.max()) + 1
     G = np.stack([np.bincount(labels, J[:, j] * r, nb) for j in range(J.shape[1])], axis=1)
+    # centred: a fit stopped short of the optimum (a bounded number of evaluations) leaves a
+    # mean score, a step towards the optimum and not a spread of the estimate
+    G = G - G.mean(axis=0)
     return Ainv, G, Ainv @ (G.T @ G) @ Ainv
 
 
