@@ -10,19 +10,25 @@ selection.
   would not be selected);
 * the block sandwich of a linear model with independent noise is the textbook covariance
   (within the scatter of its 16 windows);
-* on the independent plant (tests/independent_runs.py, not the closure's model) ``close``
-  writes the selected drive gain's standard error and interval, and the interval covers the
-  injected +6 %.
+* ``close`` writes them into the JSON summary (``selected[].params_stderr`` /
+  ``params_interval``) and the report (``value +- stderr``, the intervals).
+
+The runs here are the closure's own unit; the independent evidence of the words and the
+empirical curve's interval is in tests/test_closure_families_independent.py.
 """
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-from capstan.models.closure.dynamic.closure import named_uncertainty, setup
+from capstan.models.closure.dynamic.closure import setup
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
-from capstan.models.closure.dynamic.uncertainty import effect_uncertainty, sandwich
+from capstan.models.closure.dynamic.uncertainty import effect_uncertainty, named_uncertainty, sandwich
+from capstan.models.closure.pipeline import close
+from capstan.tools.offline.closure_report import summary, write_report
 
 from test_closure_drive_gain import EPS_TRUE, REFS, _gain, _pair
 
@@ -81,3 +87,16 @@ def test_the_block_sandwich_of_a_linear_fit_is_the_textbook_covariance() -> None
     np.testing.assert_allclose(np.diag(cov), np.diag(textbook), rtol=0.7)
     assert G.shape == (16, 2)
 
+
+
+def test_close_writes_the_errors_into_the_json_and_the_report(tmp_path) -> None:
+    res = close(*_pair(1.06))
+    summ = summary(res, ["train"], ["test"], "reduced")
+    sel = summ["selected"][0]
+    assert sel["effect"] == "drive_gain"
+    lo, hi = sel["params_interval"]["load_cell_gain_error"]
+    assert lo <= 0.06 <= hi and sel["params_stderr"]["load_cell_gain_error"] > 0.0
+    json.dumps(summ)                                           # JSON-able
+    text = write_report(res, summ, tmp_path, []).read_text()
+    assert f"load_cell_gain_error={sel['params']['load_cell_gain_error']:.4g} +- " in text
+    assert "95 % intervals" in text

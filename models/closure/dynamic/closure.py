@@ -24,14 +24,15 @@ from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
 
 from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
-from capstan.models.closure.dynamic.candidates import (_run_time, BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX, RISE_MAX,
-                                                       InModelEffect, Refs, catalogue, stiffening_beta,
-                                                       stiffening_k_scale)
+from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX,
+                                                       InModelEffect, Refs, _named, _run_time, catalogue,
+                                                       stiffening_beta)
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.dynamic.trace import residual_trace
-from capstan.models.closure.dynamic.uncertainty import ALPHA_NO_EFFECT, EffectUncertainty, effect_uncertainty
+from capstan.models.closure.dynamic.uncertainty import (ALPHA_NO_EFFECT, described_with_interval, effect_uncertainty,
+                                                        named_uncertainty)
 from capstan.models.closure.scoring import (MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, select_winner,
                                            test_blocks)
 from capstan.models.closure.shape_words import relaxation_words, support
@@ -93,60 +94,11 @@ REALIGN_ROUNDS = 5
 Progress = Callable[[int, int, str], None]
 
 
-def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, refs: Refs) -> dict[str, float]:
-    """The coefficients in the feedforward's units (effects_runtime) where a catalogue form has them."""
-    if eff.name == "dwell_stiction":
-        return {"amp_Nm": float(coef[0] * tau_fc)}
-    if eff.name == "position_friction":
-        return {"a1_Nm_rad": float(coef[0] * tau_fc / refs.q_span_rad),
-                "a2_Nm_rad2": float(coef[1] * tau_fc / refs.q_span_rad ** 2)}
-    if eff.name == "pretension_relaxation":
-        return {"d_Nm": float(coef[0] * tau_fc)}
-    if eff.name == "load_friction":
-        return {"c_load": float(coef[0] * tau_fc / refs.tau_ref_Nm)}
-    if eff.name == "speed_viscous":
-        return {"c2_Nms2_rad2": float(coef[0]), "c3_Nms3_rad3": 0.0}
-    if eff.name == "drive_gain":
-        # the simulation is driven by (1 + eps) tau_in: the load cell reads 1 / (1 + eps) - 1 off
-        return {"eps": float(coef[0]), "load_cell_gain_error": float(1.0 / (1.0 + coef[0]) - 1.0), "eps_max": GAIN_MAX}
-    if eff.name == "strain_stiffening":
-        beta = stiffening_beta(float(coef[0]), float(coef[1]))
-        return {"c_node_1_rad2": float(coef[0] / (3.0 * refs.stretch_ref_rad ** 2)), "stretch_ref_rad": refs.stretch_ref_rad,
-                "tangent_rise_at_ref": float(coef[0]), "friction_rise_at_ref": float(coef[1]),
-                "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep), "rise_max": RISE_MAX, "beta": beta,
-                "beta_plausible": bool(BETA_PLAUSIBLE[0] <= beta <= BETA_PLAUSIBLE[1])}
-    return {}
-
-
 def catalogue_words(name: str, params: dict[str, float], shape: dict, run_support: tuple[float, float]) -> str:
     """The shape words of a catalogued slow form (:mod:`capstan.models.closure.shape_words`), "" for the others."""
     if name == "pretension_relaxation":
         return relaxation_words(params["d_Nm"], float(shape["tau_r_s"]), run_support)
     return ""
-
-
-def named_uncertainty(jf: JointFit, unc: EffectUncertainty, names: list[str],
-                      refs: Refs) -> tuple[dict[str, float], dict[str, list[float]]]:
-    """(standard error, 95 % bootstrap interval) of each named parameter of ``jf``'s last effect
-    (:func:`_named`, its numeric shape, its raw coefficients ``coef:<name>``), from the
-    linearised block bootstrap of :mod:`.uncertainty`."""
-    eff, shape, _ = jf.effects[-1]
-    keys = [k for k in shape if f"shape:{k}" in unc.names]
-    i_fc = unc.names.index("base:tau_fc_Nm") if "base:tau_fc_Nm" in unc.names else None
-    ic = [unc.names.index(f"coef:{c}") for c in eff.coef_names]
-    draws: dict[str, list[float]] = {}
-    for th in unc.boot:
-        tau_fc = float(th[i_fc]) if i_fc is not None else float(jf.base[names.index("tau_fc_Nm")])
-        sh = {**shape, **{k: float(th[unc.names.index(f"shape:{k}")]) for k in keys}}
-        named = _named(eff, sh, th[ic], tau_fc, refs)
-        named.update({k: sh[k] for k in keys})
-        named.update({f"coef:{c}": float(th[j]) for c, j in zip(eff.coef_names, ic)})
-        for k, v in named.items():
-            if isinstance(v, float) and not isinstance(v, bool):
-                draws.setdefault(k, []).append(v)
-    se = {k: float(np.std(v)) for k, v in draws.items() if np.ptp(v) > 0.0}
-    ci = {k: [float(np.quantile(draws[k], 0.025)), float(np.quantile(draws[k], 0.975))] for k in se}
-    return se, ci
 
 
 def implausible(eff: InModelEffect, coef: np.ndarray) -> str:
@@ -344,6 +296,10 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
         _tick(ds, "uncertainty", t0)
         win.params_stderr, win.params_interval = named_uncertainty(current, unc, names, refs)
         win.no_effect_p = unc.p_value
+        if win.description is not None:
+            x_sig = train.signal(weff.depends_on[0])
+            win.description = described_with_interval(closer, current, unc, names, refs,
+                                                      support(x_sig) if x_sig is not None else None)
         if unc.no_effect:
             # "no effect" inside the parameters' 95 % region: a marginal finding, not selected
             win.no_effect = (f"no effect within the interval: Wald {unc.wald:.3g} on {unc.dof} "

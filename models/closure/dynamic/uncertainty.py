@@ -33,6 +33,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from capstan.models.closure import windows
+from capstan.models.closure.dynamic.candidates import Refs, _named
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
 from capstan.models.closure.scoring import test_blocks
 
@@ -157,3 +158,57 @@ def effect_uncertainty(closer: InModelCloser, jf: JointFit, n_boot: int = N_BOOT
     wald = float(c @ np.linalg.pinv(C) @ c) if c.size else math.inf
     dof = max(len(test_cols), 1)
     return EffectUncertainty(names, theta, cov, boot, wald, dof, float(chi2.sf(wald, dof)))
+
+
+def named_uncertainty(jf: JointFit, unc: EffectUncertainty, names: list[str],
+                      refs: Refs) -> tuple[dict[str, float], dict[str, list[float]]]:
+    """(standard error, 95 % bootstrap interval) of each named parameter of ``jf``'s last effect
+    (:func:`.candidates._named`, its numeric shape, its raw coefficients ``coef:<name>``), from the
+    linearised block bootstrap of :mod:`.uncertainty`."""
+    eff, shape, _ = jf.effects[-1]
+    keys = [k for k in shape if f"shape:{k}" in unc.names]
+    i_fc = unc.names.index("base:tau_fc_Nm") if "base:tau_fc_Nm" in unc.names else None
+    ic = [unc.names.index(f"coef:{c}") for c in eff.coef_names]
+    draws: dict[str, list[float]] = {}
+    for th in unc.boot:
+        tau_fc = float(th[i_fc]) if i_fc is not None else float(jf.base[names.index("tau_fc_Nm")])
+        sh = {**shape, **{k: float(th[unc.names.index(f"shape:{k}")]) for k in keys}}
+        named = _named(eff, sh, th[ic], tau_fc, refs)
+        named.update({k: sh[k] for k in keys})
+        named.update({f"coef:{c}": float(th[j]) for c, j in zip(eff.coef_names, ic)})
+        for k, v in named.items():
+            if isinstance(v, float) and not isinstance(v, bool):
+                draws.setdefault(k, []).append(v)
+    se = {k: float(np.std(v)) for k, v in draws.items() if np.ptp(v) > 0.0}
+    ci = {k: [float(np.quantile(draws[k], 0.025)), float(np.quantile(draws[k], 0.975))] for k in se}
+    return se, ci
+
+
+#: bootstrap draws an empirical curve's peak-to-peak interval is taken from
+N_PTP_DRAWS = 200
+
+
+def described_with_interval(closer: InModelCloser, jf: JointFit, unc: EffectUncertainty, names: list[str],
+                            refs: Refs, sup: tuple[float, float] | None) -> dict | None:
+    """The description of ``jf``'s last effect (an empirical curve) at its joint refit, with the
+    95 % interval of its peak-to-peak over the support ``sup`` from ``N_PTP_DRAWS`` of the
+    bootstrap draws (:mod:`.uncertainty`)."""
+    eff, _, coef = jf.effects[-1]
+    i_fc = names.index("tau_fc_Nm")
+    tau_fc = float(jf.base[i_fc])
+    d = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm, sup)
+    if d is None:
+        return None
+    ic = [unc.names.index(f"coef:{c}") for c in eff.coef_names]
+    j_fc = unc.names.index("base:tau_fc_Nm") if "base:tau_fc_Nm" in unc.names else None
+    key = "peak_to_peak_gain" if "peak_to_peak_gain" in d else "peak_to_peak_Nm"
+    ptp = []
+    for th in unc.boot[:N_PTP_DRAWS]:
+        db = closer.describe(eff, th[ic], float(th[j_fc]) if j_fc is not None else tau_fc, refs.drive_scale_Nm, sup)
+        if db is not None:
+            ptp.append(float(db[key]))
+    if ptp:
+        lo, hi = float(np.quantile(ptp, 0.025)), float(np.quantile(ptp, 0.975))
+        d[key + "_interval"] = [lo, hi]
+        d["text"] += f" (peak-to-peak 95 % interval {lo:.3g}-{hi:.3g}, block bootstrap over 0.5 s windows)"
+    return d
