@@ -164,7 +164,7 @@ def named_uncertainty(jf: JointFit, unc: EffectUncertainty, names: list[str],
                       refs: Refs) -> tuple[dict[str, float], dict[str, list[float]]]:
     """(standard error, 95 % bootstrap interval) of each named parameter of ``jf``'s last effect
     (:func:`.candidates._named`, its numeric shape, its raw coefficients ``coef:<name>``), from the
-    linearised block bootstrap of :mod:`.uncertainty`."""
+    linearised block bootstrap (module docstring)."""
     eff, shape, _ = jf.effects[-1]
     keys = [k for k in shape if f"shape:{k}" in unc.names]
     i_fc = unc.names.index("base:tau_fc_Nm") if "base:tau_fc_Nm" in unc.names else None
@@ -192,7 +192,7 @@ def described_with_interval(closer: InModelCloser, jf: JointFit, unc: EffectUnce
                             refs: Refs, sup: tuple[float, float] | None) -> dict | None:
     """The description of ``jf``'s last effect (an empirical curve) at its joint refit, with the
     95 % interval of its peak-to-peak over the support ``sup`` from ``N_PTP_DRAWS`` of the
-    bootstrap draws (:mod:`.uncertainty`)."""
+    bootstrap draws (module docstring)."""
     eff, _, coef = jf.effects[-1]
     i_fc = names.index("tau_fc_Nm")
     tau_fc = float(jf.base[i_fc])
