@@ -119,6 +119,22 @@ def test_the_load_cell_gain_is_measured_as_injected() -> None:
     assert sum(abs(g - 0.06) <= 0.006 for g in got) >= RATE, got
 
 
+def test_a_step_in_routing_described_over_time_is_called_a_step_with_its_interval() -> None:
+    """Where the re-routing is explained by an empirical curve over time, its words name a step
+    up (the tighter bend adds friction from one instant on), and the stated peak-to-peak -- over
+    the 5-95 % support of the run time -- lies inside its bootstrap interval (issue #30: it was
+    "rises about linearly")."""
+    described = [r.selected[0] for r in (closed("reroute_step", s) for s in SEEDS)
+                 if r.selected and r.selected[0].effect == "empirical:time"]
+    assert described, "no seed pair explained the re-routing by a curve over time"
+    for c in described:
+        d = c.description
+        assert d is not None and "steps up" in d["trend"], d
+        lo, hi = d["peak_to_peak_Nm_interval"]
+        assert lo <= d["peak_to_peak_Nm"] <= hi, d
+        assert d["support"][0] >= 0.05 * SECONDS * 0.99 and d["support"][1] <= 0.95 * SECONDS * 1.01, d["support"]
+
+
 def main(effects: list[str]) -> None:
     """Print every case's figures, seed by seed (all cases if ``effects`` is empty)."""
     for effect in effects or ("none", *MECHANISM):

@@ -40,6 +40,7 @@ from capstan.models.closure.identification import BaselineFit, ModelKind, fit_ba
 from capstan.models.closure.residual_trace import describe_curve, empirical_candidates, is_empirical
 from capstan.models.closure.scoring import (BLOCK_S, MATERIAL, N_BOOT, PREFER_CATALOGUE, Candidate,  # noqa: F401
                                             TargetResult, _rmse, block_bootstrap, select_winner, test_blocks)
+from capstan.models.closure.shape_words import support
 from capstan.models.closure.signals import Signals
 
 MAX_ROUNDS = 4
@@ -140,7 +141,9 @@ def _close_target(aug: Augmented, specs: list[EffectSpec], labels: np.ndarray,
                 cand.baseline_params = named_params(d.kind, th, fit.alpha_s_rad, fit.eta_s_rad_s)
             if is_empirical(spec) and k:
                 knots = np.array([float(x) for x in str(shape["knots"]).split(",")])
-                cand.description = describe_curve(spec.depends_on[0], knots, th[len(th) - k:])
+                x_sig = d.train.signal(spec.depends_on[0])
+                cand.description = describe_curve(spec.depends_on[0], knots, th[len(th) - k:],
+                                                  sup=support(x_sig) if x_sig is not None else None)
                 cand.description["knots"] = knots.tolist()
                 cand.description["curve"] = th[len(th) - k:].tolist()
             fits[id(cand)] = (fit, realign, ridge_F, shape)

@@ -22,6 +22,7 @@ from functools import partial
 import numpy as np
 
 from capstan.models.closure.effects import EffectSpec, FeatureContext, Shape, Target
+from capstan.models.closure.shape_words import SLOW_SIGNALS, on_support, slow_shape
 from capstan.models.closure.signals import Signals
 
 #: knots per empirical curve
@@ -108,11 +109,16 @@ def is_empirical(spec: EffectSpec) -> bool:
     return spec.name.startswith("empirical:")
 
 
-def describe_curve(signal: str, knots: np.ndarray, coef: np.ndarray, unit: str = "") -> dict:
+def describe_curve(signal: str, knots: np.ndarray, coef: np.ndarray, unit: str = "",
+                   sup: tuple[float, float] | None = None) -> dict:
     """Describe how the residual depends on ``signal`` from an empirical curve's coefficients.
 
-    Returns ``{"signal", "part", "trend", "period", "peak_to_peak_Nm", "text"}`` where
-    ``part`` is "friction-like (odd in the motion direction)" or "additive".
+    Returns ``{"signal", "part", "trend", "period", "peak_to_peak_Nm", "support", "text"}`` where
+    ``part`` is "friction-like (odd in the motion direction)" or "additive". The peak-to-peak
+    and the trend's magnitudes are over ``sup`` (the 5-95 % support of the signal's training
+    values, :func:`capstan.models.closure.shape_words.support`; the knots' span if None); a slow
+    signal's trend names a step or an exponential relaxation where the curve has that shape
+    (:func:`capstan.models.closure.shape_words.slow_shape`).
     """
     k = knots.size
     even, odd = coef[:k], coef[k:2 * k]
@@ -122,10 +128,13 @@ def describe_curve(signal: str, knots: np.ndarray, coef: np.ndarray, unit: str =
     slope = float(np.polyfit(knots, f, 1)[0]) if k >= 2 else 0.0
     detr = f - np.polyval(np.polyfit(knots, f, 1), knots)
     sign_changes = int(np.sum(np.diff(np.sign(detr[np.abs(detr) > 0.2 * np.max(np.abs(detr)) + 1e-15])) != 0))
-    ptp = float(np.ptp(f))
+    xs, fd = on_support(knots, f, sup)
+    ptp = float(np.ptp(fd))
     lin_share = 1.0 - float(np.var(detr)) / max(float(np.var(f)), 1e-30)
     period = None
-    if sign_changes >= 4 and lin_share < 0.5:
+    if signal in SLOW_SIGNALS:
+        trend = slow_shape(xs, fd, unit or "s")[1]
+    elif sign_changes >= 4 and lin_share < 0.5:
         # dominant period from a dense resampling of the curve
         xs = np.linspace(knots[0], knots[-1], 512)
         ys = np.interp(xs, knots, detr)
@@ -137,7 +146,7 @@ def describe_curve(signal: str, knots: np.ndarray, coef: np.ndarray, unit: str =
         trend = f"{'rises' if slope > 0 else 'falls'} about linearly ({slope:.3g} Nm per {unit or 'unit'})"
     else:
         trend = f"varies non-monotonically ({sign_changes} turns)"
-    text = (f"residual depends on {signal}: {part}, {trend}, peak-to-peak {ptp:.3g} Nm; "
-            "no catalogued form explains it")
+    text = (f"residual depends on {signal}: {part}, {trend}, peak-to-peak {ptp:.3g} Nm over "
+            f"{xs[0]:.3g}-{xs[-1]:.3g} {unit}".rstrip() + "; no catalogued form explains it")
     return {"signal": signal, "part": part, "trend": trend, "period": period,
-            "peak_to_peak_Nm": ptp, "text": text}
+            "peak_to_peak_Nm": ptp, "support": [float(xs[0]), float(xs[-1])], "text": text}

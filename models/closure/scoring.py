@@ -55,6 +55,15 @@ class Candidate:
     #: why its fitted coefficients are outside the mechanism's physical range (then not
     #: significant), else ""
     implausible: str = ""
+    #: standard errors and 95 % intervals of the selected effect's parameters (the keys of
+    #: ``params`` and ``shape`` that were fitted; :mod:`capstan.models.closure.dynamic.uncertainty`)
+    params_stderr: dict[str, float] | None = None
+    params_interval: dict[str, list[float]] | None = None
+    #: level at which "no effect" is rejected (NaN: not tested); why it was not selected, else ""
+    no_effect_p: float = math.nan
+    no_effect: str = ""
+    #: the shape and size of a catalogued slow form in words (:mod:`capstan.models.closure.shape_words`), else ""
+    words: str = ""
 
     def summary(self) -> dict:
         """JSON-able summary."""
@@ -67,8 +76,17 @@ class Candidate:
             d["screened_out"] = self.screened_out
         if self.implausible:
             d["implausible"] = self.implausible
+        if self.params_stderr is not None:
+            d["params"] = {**self.params, **{k: v for k, v in self.shape.items() if k in self.params_stderr}}
+            d["params_stderr"] = self.params_stderr
+            d["params_interval"] = self.params_interval
+            d["no_effect_p"] = self.no_effect_p
+        if self.no_effect:
+            d["no_effect"] = self.no_effect
         if self.description:
             d["description"] = self.description["text"]
+        elif self.words:
+            d["description"] = self.words
         return d
 
 

@@ -39,7 +39,9 @@ def summary(res: ClosureResult, train_names: list[str], test_names: list[str], m
                      "params": res.baseline.params, "stderr": res.baseline.stderr},
         "candidates": [c.summary() for t in res.targets.values() for c in t.candidates],
         "selected": [{"effect": c.effect, "depends_on": c.depends_on, "target": c.target.name.lower(),
-                      "improvement": c.improvement, "params": _selected_params(c)}
+                      "improvement": c.improvement, "params": _selected_params(c),
+                      "params_stderr": c.params_stderr, "params_interval": c.params_interval,
+                      "no_effect_p": c.no_effect_p, "description": (c.description or {}).get("text", c.words)}
                      for t in res.targets.values() for c in t.selected],
         "final": {"rmse_Nm": main.rmse_after_Nm, "max_err_Nm": main.max_after_Nm},
         "trace": res.trace,
@@ -206,6 +208,14 @@ def _plots(res: ClosureResult, outdir: Path) -> list[tuple[str, str]]:
     return pics
 
 
+def _with_error(k: str, v: Any, stderr: dict[str, float] | None) -> str:
+    """``k=v`` with ``+- stderr`` where the parameter has one."""
+    if not isinstance(v, float):
+        return f"{k}={v}"
+    se = (stderr or {}).get(k)
+    return f"{k}={v:.4g} +- {se:.2g}" if se is not None else f"{k}={v:.4g}"
+
+
 def write_report(res: ClosureResult, summ: dict[str, Any], outdir: Path, attribution: list[str]) -> Path:
     """Write ``report.md`` + PNGs into ``outdir``; returns the Markdown path."""
     outdir.mkdir(parents=True, exist_ok=True)
@@ -247,7 +257,20 @@ def write_report(res: ClosureResult, summ: dict[str, Any], outdir: Path, attribu
     for s in summ["selected"]:
         L.append(f"- **{s['effect']}** ({', '.join(s['depends_on'])}, {s['target']}): "
                  f"{s['improvement']:.1%} lower held-out RMSE; "
-                 + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s["params"].items()))
+                 + ", ".join(_with_error(k, v, s.get("params_stderr")) for k, v in s["params"].items()))
+        if s.get("description"):
+            L.append(f"  {s['description']}")
+        if s.get("params_interval"):
+            L.append("  95 % intervals (linearised block bootstrap over 0.5 s windows): "
+                     + ", ".join(f"{k} [{a:.4g}, {b:.4g}]" for k, (a, b) in s["params_interval"].items()
+                                 if not k.startswith("coef:"))
+                     + f"; no effect rejected at p {s['no_effect_p']:.2g}")
+    dropped = [c for c in summ["candidates"] if c.get("no_effect")]
+    if dropped:
+        L += ["", "Not selected because their parameters' interval includes no effect:", ""]
+        L += [f"- {c['effect']} ({', '.join(c['depends_on'])}): {c['no_effect']}; "
+              + ", ".join(_with_error(k, v, c.get("params_stderr")) for k, v in c.get("params", {}).items())
+              for c in dropped]
     L += ["", "## Plots", ""]
     L += [f"### {title}\n\n![{title}]({fn})\n" for title, fn in pics]
     if attribution:

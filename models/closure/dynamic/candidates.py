@@ -98,6 +98,9 @@ DWELL_GRID = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.5, 3.0) for s0 in 
 DWELL_GRID_FINE = tuple({"tau_age_s": a, "s0_rad": s0} for a in (0.25, 0.5, 1.0, 2.0, 4.0)
                         for s0 in (0.005, 0.01, 0.02, 0.04, 0.08))
 
+#: time constants of the pretension relaxation tried [s] (refined between neighbours, in_model)
+RELAX_GRID_S = (2.0, 10.0, 50.0, 250.0)
+
 #: plausibility bound of the drive gain's |eps| (a load cell off by more than -23 / +43 % is a
 #: wiring or calibration fault, not an effect to model); a fit at the bound is reported implausible
 GAIN_MAX = 0.3
@@ -239,7 +242,7 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
         InModelEffect("dwell_stiction", ("dwell",), ("A",), (-0.9,), (5.0,), tuple(dwell_grid), dwell),
         InModelEffect("position_friction", ("position",), ("A1", "A2"), (-3.0, -3.0), (3.0, 3.0), ({},), position),
         InModelEffect("pretension_relaxation", ("time",), ("D",), (-0.9,), (5.0,),
-                      tuple({"tau_r_s": t} for t in (2.0, 10.0, 50.0, 250.0)), relax),
+                      tuple({"tau_r_s": t} for t in RELAX_GRID_S), relax),
         InModelEffect("load_friction", ("load",), ("CL",), (-0.9,), (5.0,), ({},), load),
         InModelEffect("speed_viscous", ("velocity",), ("C2_Nms2_rad2",), (0.0,), (math.inf,), ({},), speed),
         InModelEffect("sensor_latency", ("latency",), (), (), (),
@@ -308,3 +311,28 @@ def catalogue(train: Signals, refs: Refs, excluded: dict[str, str], empirical: l
                                  (-0.5,) * kn.size, (0.5,) * kn.size, ({},), gain, empirical=True, knots=kn,
                                  drive_gain=True))
     return out
+
+
+def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, refs: Refs) -> dict[str, float]:
+    """The coefficients in the feedforward's units (effects_runtime) where a catalogue form has them."""
+    if eff.name == "dwell_stiction":
+        return {"amp_Nm": float(coef[0] * tau_fc)}
+    if eff.name == "position_friction":
+        return {"a1_Nm_rad": float(coef[0] * tau_fc / refs.q_span_rad),
+                "a2_Nm_rad2": float(coef[1] * tau_fc / refs.q_span_rad ** 2)}
+    if eff.name == "pretension_relaxation":
+        return {"d_Nm": float(coef[0] * tau_fc)}
+    if eff.name == "load_friction":
+        return {"c_load": float(coef[0] * tau_fc / refs.tau_ref_Nm)}
+    if eff.name == "speed_viscous":
+        return {"c2_Nms2_rad2": float(coef[0]), "c3_Nms3_rad3": 0.0}
+    if eff.name == "drive_gain":
+        # the simulation is driven by (1 + eps) tau_in: the load cell reads 1 / (1 + eps) - 1 off
+        return {"eps": float(coef[0]), "load_cell_gain_error": float(1.0 / (1.0 + coef[0]) - 1.0), "eps_max": GAIN_MAX}
+    if eff.name == "strain_stiffening":
+        beta = stiffening_beta(float(coef[0]), float(coef[1]))
+        return {"c_node_1_rad2": float(coef[0] / (3.0 * refs.stretch_ref_rad ** 2)), "stretch_ref_rad": refs.stretch_ref_rad,
+                "tangent_rise_at_ref": float(coef[0]), "friction_rise_at_ref": float(coef[1]),
+                "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep), "rise_max": RISE_MAX, "beta": beta,
+                "beta_plausible": bool(BETA_PLAUSIBLE[0] <= beta <= BETA_PLAUSIBLE[1])}
+    return {}

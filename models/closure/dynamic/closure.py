@@ -24,15 +24,18 @@ from capstan.models.closure.dynamic.baseline import DynamicFit, fit_dynamic
 
 from capstan.models.closure.dynamic.forms import DrivingForm
 from capstan.models.closure.dynamic.in_model import InModelCloser, JointFit
-from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX, RISE_MAX,
-                                                       InModelEffect, Refs, catalogue, stiffening_beta,
-                                                       stiffening_k_scale)
+from capstan.models.closure.dynamic.candidates import (BETA_PLAUSIBLE, DWELL_GRID, DWELL_GRID_FINE, GAIN_MAX,
+                                                       InModelEffect, Refs, _named, _run_time, catalogue,
+                                                       stiffening_beta)
 from capstan.models.closure.effects import Target, shift_within_runs
 from capstan.models.closure.exclusion import excluded_signals
 from capstan.models.closure.dynamic.long_run import SCREEN_MIN, LongRunCloser
 from capstan.models.closure.dynamic.trace import residual_trace
+from capstan.models.closure.dynamic.uncertainty import (ALPHA_NO_EFFECT, described_with_interval, effect_uncertainty,
+                                                        named_uncertainty)
 from capstan.models.closure.scoring import (MATERIAL, Candidate, TargetResult, _rmse, block_bootstrap, select_winner,
                                            test_blocks)
+from capstan.models.closure.shape_words import relaxation_words, support
 from capstan.models.closure.signals import Signals
 from capstan.models.closure import windows
 
@@ -93,29 +96,11 @@ REALIGN_ROUNDS = 5
 Progress = Callable[[int, int, str], None]
 
 
-def _named(eff: InModelEffect, shape: dict, coef: np.ndarray, tau_fc: float, refs: Refs) -> dict[str, float]:
-    """The coefficients in the feedforward's units (effects_runtime) where a catalogue form has them."""
-    if eff.name == "dwell_stiction":
-        return {"amp_Nm": float(coef[0] * tau_fc)}
-    if eff.name == "position_friction":
-        return {"a1_Nm_rad": float(coef[0] * tau_fc / refs.q_span_rad),
-                "a2_Nm_rad2": float(coef[1] * tau_fc / refs.q_span_rad ** 2)}
-    if eff.name == "pretension_relaxation":
-        return {"d_Nm": float(coef[0] * tau_fc)}
-    if eff.name == "load_friction":
-        return {"c_load": float(coef[0] * tau_fc / refs.tau_ref_Nm)}
-    if eff.name == "speed_viscous":
-        return {"c2_Nms2_rad2": float(coef[0]), "c3_Nms3_rad3": 0.0}
-    if eff.name == "drive_gain":
-        # the simulation is driven by (1 + eps) tau_in: the load cell reads 1 / (1 + eps) - 1 off
-        return {"eps": float(coef[0]), "load_cell_gain_error": float(1.0 / (1.0 + coef[0]) - 1.0), "eps_max": GAIN_MAX}
-    if eff.name == "strain_stiffening":
-        beta = stiffening_beta(float(coef[0]), float(coef[1]))
-        return {"c_node_1_rad2": float(coef[0] / (3.0 * refs.stretch_ref_rad ** 2)), "stretch_ref_rad": refs.stretch_ref_rad,
-                "tangent_rise_at_ref": float(coef[0]), "friction_rise_at_ref": float(coef[1]),
-                "k_scale": stiffening_k_scale(float(coef[0]), refs.stretch_keep), "rise_max": RISE_MAX, "beta": beta,
-                "beta_plausible": bool(BETA_PLAUSIBLE[0] <= beta <= BETA_PLAUSIBLE[1])}
-    return {}
+def catalogue_words(name: str, params: dict[str, float], shape: dict, run_support: tuple[float, float]) -> str:
+    """The shape words of a catalogued slow form (:mod:`capstan.models.closure.shape_words`), "" for the others."""
+    if name == "pretension_relaxation":
+        return relaxation_words(params["d_Nm"], float(shape["tau_r_s"]), run_support)
+    return ""
 
 
 def implausible(eff: InModelEffect, coef: np.ndarray) -> str:
@@ -203,6 +188,7 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
     remaining = catalogue(train, refs, ds.excluded, emp, drive_gain=gain_signals(ds, train), dwell_grid=dwell_grid,
                           gain=offers_gain(ds))
     labels = test_blocks(test)
+    run_support = support(_run_time(train))
     current = JointFit(np.array(list(fit.params.values())))
     yt, pred_t = ds.y_test_Nm, ds.pred_test_Nm
     res = TargetResult(Target.TAU_OUT, yt, pred_t.copy(), pred_t, _rmse(yt - pred_t),
@@ -268,7 +254,10 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
                                      f"(< {100 * SCREEN_MIN:.1f} %)")
             else:
                 cand.held_out_samples = len(r_after)
-            cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm)
+            x_sig = train.signal(eff.depends_on[0]) if eff.depends_on else None
+            cand.description = closer.describe(eff, coef, tau_fc, refs.drive_scale_Nm,
+                                               support(x_sig) if x_sig is not None else None)
+            cand.words = catalogue_words(eff.name, cand.params, shape, run_support)
             fits[id(cand)] = (jf, pt, eff, shape)
             tried.append(cand)
         res.candidates.extend(tried)
@@ -291,12 +280,32 @@ def close_in_model(ds: DynamicSetup, train: Signals, test: Signals, progress: Pr
             current = closer.refit(prev, weff, wshape, base_free=True)
         if "lag_s" in wshape and not prev.effects:
             current = _refit_realigned(closer, current, weff, wshape)
+        wshape = current.effects[-1][1]
+        win.shape = dict(wshape)
         win.params = _named(weff, wshape, current.effects[-1][2], float(current.base[names.index("tau_fc_Nm")]), refs)
+        win.words = catalogue_words(weff.name, win.params, wshape, run_support)
         remaining = [e for e in remaining if e is not weff]
         win.implausible = implausible(weff, current.effects[-1][2])
         if win.implausible:
             # the joint refit left the mechanism's physical range: not an explanation (the
             # round's other candidates are tried again in the next round, from the same model)
+            win.significant = False
+            res.selected.pop()
+            current = prev
+            continue
+        t0 = time.perf_counter()
+        unc = effect_uncertainty(closer, current)
+        _tick(ds, "uncertainty", t0)
+        win.params_stderr, win.params_interval = named_uncertainty(current, unc, names, refs)
+        win.no_effect_p = unc.p_value
+        if win.description is not None:
+            x_sig = train.signal(weff.depends_on[0])
+            win.description = described_with_interval(closer, current, unc, names, refs,
+                                                      support(x_sig) if x_sig is not None else None)
+        if unc.no_effect:
+            # "no effect" inside the parameters' 95 % region: a marginal finding, not selected
+            win.no_effect = (f"no effect within the interval: Wald {unc.wald:.3g} on {unc.dof} "
+                             f"coefficient(s), p {unc.p_value:.2g} >= {ALPHA_NO_EFFECT:g}")
             win.significant = False
             res.selected.pop()
             current = prev

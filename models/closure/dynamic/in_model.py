@@ -23,10 +23,37 @@ from capstan.models.closure.dynamic.candidates import InModelEffect, merge_mods
 from capstan.models.closure.residual_trace import describe_curve
 from capstan.models.closure.signals import Signals
 
+#: units of the signals an empirical curve is described over
+UNITS = {"time": "s", "dwell": "s", "position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2", "load": "Nm",
+         "q_in": "rad", "tension": "N"}
 #: least-squares evaluations of a joint refit (per coefficient + 1 for a held one)
 MAX_NFEV = 30
 #: evaluations per coefficient (+1) of a shape-search fit (the baseline held)
 SHAPE_NFEV = 8
+
+
+#: one-value shapes refined between the grid neighbours of their best grid value, on a
+#: geometric scale (a time constant), ``REFINE_POINTS`` on each side
+REFINED = ("tau_r_s",)
+REFINE_POINTS = 4
+
+
+def _refine_scalar(best: tuple[float, dict], key: str, grid: list[float],
+                   sse: Callable[[dict], float]) -> tuple[float, dict]:
+    """The value of ``key`` of lowest training SSE among ``REFINE_POINTS`` geometric points on
+    each side of the best (positive) grid value up to its grid neighbours (below the grid's
+    first value: one grid ratio beyond; above its last: none)."""
+    v = float(best[1][key])
+    i = grid.index(v)
+    lo_v = grid[i - 1] if i > 0 else (v * v / grid[1] if len(grid) > 1 else v)
+    hi_v = grid[i + 1] if i + 1 < len(grid) else v
+    fr = np.arange(1, REFINE_POINTS + 1) / (REFINE_POINTS + 1)
+    for a, b in ((lo_v, v), (v, hi_v)):
+        for x in (a * (b / a) ** fr if a != b else ()):
+            e = sse({key: float(x)})
+            if e < best[0]:
+                best = (e, {key: float(x)})
+    return best
 
 
 @dataclass
@@ -153,6 +180,9 @@ class InModelCloser:
         best = min(scored, key=lambda s: s[0])
         if set(best[1]) == {"lag_s"}:
             best = self._refine_lag(best, [sh["lag_s"] for _, sh in scored], sse)
+        elif len(best[1]) == 1 and next(iter(best[1])) in REFINED:
+            key = next(iter(best[1]))
+            best = _refine_scalar(best, key, sorted(sh[key] for _, sh in scored), sse)
         return best[1]
 
     def _refine_lag(self, best: tuple[float, dict], grid_s: list[float],
@@ -179,7 +209,10 @@ class InModelCloser:
         return best
 
     @staticmethod
-    def describe(eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float) -> dict | None:
+    def describe(eff: InModelEffect, coef: np.ndarray, tau_fc_Nm: float, drive_Nm: float,
+                 sup: tuple[float, float] | None = None) -> dict | None:
+        """An empirical curve's description (:func:`describe_curve`), its magnitudes over
+        ``sup`` (the 5-95 % support of its signal in the training runs); None for a catalogued form."""
         if eff.name == "empirical:direction":
             d = float(coef[0])
             return {"signal": "velocity", "part": "friction-like (depends on the motion direction)",
@@ -192,7 +225,7 @@ class InModelCloser:
         k = eff.knots.size
         if eff.drive_gain:
             sig = eff.depends_on[0]
-            d = describe_curve(sig, eff.knots, np.concatenate([coef, np.zeros(k)]), unit="rad")
+            d = describe_curve(sig, eff.knots, np.concatenate([coef, np.zeros(k)]), unit="rad", sup=sup)
             d["part"] = "gain of the drive torque"
             d["trend"] = d["trend"].replace("Nm per", "per")     # a gain: dimensionless per rad
             d["text"] = (f"the drive torque reaching the cable varies with {sig}: gain {d['trend']}, "
@@ -201,7 +234,8 @@ class InModelCloser:
             d["knots"] = eff.knots.tolist()
             d["curve"] = coef.tolist()
             return d
-        d = describe_curve(eff.depends_on[0], eff.knots, np.concatenate([coef[k:] * drive_Nm, coef[:k] * tau_fc_Nm]))
+        d = describe_curve(eff.depends_on[0], eff.knots, np.concatenate([coef[k:] * drive_Nm, coef[:k] * tau_fc_Nm]),
+                           unit=UNITS.get(eff.depends_on[0], ""), sup=sup)
         d["knots"] = eff.knots.tolist()
         d["curve"] = (coef[k:] * drive_Nm).tolist() + (coef[:k] * tau_fc_Nm).tolist()
         return d
