@@ -73,13 +73,14 @@ EVENT_DTYPE = np.dtype([("t_s", "<f8"), ("kind", "<u4"), ("n_cycles", "<u4"), ("
                         ("reason", "S240")])
 
 
-def _normal_scheduling(pid: int) -> None:
+def _normal_scheduling(pid: int, cpus: frozenset[int] | None = None) -> None:
     """A writer restarted from the real-time loop inherits its SCHED_FIFO priority and CPU
-    pinning: give it normal scheduling on every CPU (lowering is always permitted)."""
+    pinning: give it normal scheduling on ``cpus`` (default every CPU; lowering is always
+    permitted)."""
     try:
         if os.sched_getscheduler(pid) != os.SCHED_OTHER:
             os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
-        os.sched_setaffinity(pid, range(os.cpu_count() or 1))
+        os.sched_setaffinity(pid, cpus or range(os.cpu_count() or 1))
     except (OSError, AttributeError) as exc:     # the process may be gone already
         _log.debug("log writer %d: scheduling not reset: %s", pid, exc)
 
@@ -170,6 +171,16 @@ class LogSession:
                       "--drop-fields", ",".join(drop_fields), "--keep-bytes", str(int(keep_bytes)),
                       "--float32-quanta", json.dumps({k: float(v) for k, v in (float32_quanta or {}).items()})]
         self.proc: subprocess.Popen | None = None
+        #: CPUs the writer process runs on (None: every CPU), see :meth:`keep_writer_on`
+        self.writer_cpus: frozenset[int] | None = None
+
+    def keep_writer_on(self, cpus: frozenset[int]) -> None:
+        """Run the writer (now and after any restart) on ``cpus`` only: the daemon keeps it off
+        the loop's pinned CPUs, where its encoding (~1/3 of a core at 1 kHz) would delay cycles.
+        An empty set leaves it on every CPU."""
+        self.writer_cpus = frozenset(cpus) or None
+        if self.proc is not None and self.proc.poll() is None:
+            _normal_scheduling(self.proc.pid, self.writer_cpus)
 
     def start(self, ready_timeout_s: float = 10.0) -> None:
         """Spawn the writer process (``python -m capstan.controller.log.writer``) and wait until
@@ -195,7 +206,7 @@ class LogSession:
         self.cycle.reset_consumer()
         self._read_at_spawn = self.cycle.read_count
         self.proc = subprocess.Popen(cmd)
-        _normal_scheduling(self.proc.pid)
+        _normal_scheduling(self.proc.pid, self.writer_cpus)
 
     def _newest_file(self) -> Path | None:
         files = list(self.out_dir.glob(f"{self.prefix}_*.mcap"))

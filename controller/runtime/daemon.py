@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import signal
 import threading
 import time
@@ -146,6 +147,9 @@ class Daemon:
         try:
             t0 = time.monotonic()
             rt = realtime.prepare(self.cfg.realtime)
+            loop_cpus = set(self.cfg.realtime.cpus) if self.cfg.realtime.mode != realtime.RealtimeMode.OFF else set()
+            if loop_cpus and hasattr(self.sink, "keep_writer_on"):   # the writer off the loop's CPUs
+                self.sink.keep_writer_on(frozenset(set(range(os.cpu_count() or 1)) - loop_cpus))
             t1 = time.monotonic()
             dev.imu.start()
             dev.load_cells.start()
