@@ -39,6 +39,12 @@ SENSOR_TIMEOUT_S = 0.05
 HOST_STALL_TRIES = 3
 
 
+def stalled_host(reason: str) -> bool:
+    """True if a daemon fault's reason says the host did not run the loop: a host stall the
+    daemon diagnosed, or a streak of late cycles (the loop could not keep its period)."""
+    return "host stall" in reason or "OVERRUN_STREAK" in reason
+
+
 class Profile(Protocol):
     """A torque profile; may adapt to what it measures."""
 
@@ -231,7 +237,7 @@ def _run_once(cfg: DaemonConfig, step: str, name: str, profile: Profile, max_dur
     except ControlFaultError as exc:
         text = (f"{name}: {ctl.reason or exc.reason} (torque zero, drive disabled; log "
                 f"{daemon.summary.log_path})")
-        if not ctl.reason and "host stall" in exc.reason:
+        if not ctl.reason and stalled_host(exc.reason):
             return ctl, daemon, text
         raise BringupStop(step, text) from None
     except BringupStop:

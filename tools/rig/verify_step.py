@@ -35,7 +35,7 @@ from capstan.controller.runtime.daemon import Daemon
 from capstan.controller.runtime.run_summary import Phase
 from capstan.models.common.errors import CapstanError, ControlFaultError, DriverError
 from capstan.tools.rig.start_config import BringupStop, RigStart
-from capstan.tools.rig.step_run import HOST_STALL_TRIES
+from capstan.tools.rig.step_run import HOST_STALL_TRIES, stalled_host
 from capstan.tools.rig.tuned import tuned_mapping
 
 log = logging.getLogger("capstan.rig")
@@ -109,7 +109,7 @@ def verify(start: RigStart, controller: Mapping[str, Any], overrides: Mapping[st
         except ControlFaultError as exc:
             text = (f"the tuned loop faulted: {exc.reason} (torque zero, drive disabled; log "
                     f"{daemon.summary.log_path}); no tuned config written")
-            if "host stall" not in exc.reason or attempt == HOST_STALL_TRIES:
+            if not stalled_host(exc.reason) or attempt == HOST_STALL_TRIES:
                 raise BringupStop("verify", text) from None
             log.warning("verify: %s; run again (attempt %d of %d)", text, attempt + 1, HOST_STALL_TRIES)
         except (DriverError, CapstanError) as exc:
