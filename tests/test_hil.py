@@ -77,7 +77,8 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
     assert res.returncode == 0, res.stderr[-3000:]
     # READY first (the watchdog is pinged from the loop's first on-time cycles, arming included)
     assert [m for m in msgs if m != "WATCHDOG=1"][0] == "READY=1"
-    phases = read_log(out["log_path"]).records["phase"]
+    log = read_log(out["log_path"])
+    phases = log.records["phase"]
     arming = int(np.sum(phases == 0))                       # cycles before READY: loop.arm_on_time_cycles on time
     assert 200 <= arming < 1000
     loop_s = (out["cycles"] + out["missed"]) * 1e-3
@@ -93,7 +94,6 @@ def test_hil_json_summary_valid_log_and_notify(hil_config: Path, tmp_path: Path)
     running = int(np.sum(phases >= 1))
     assert 2200 - 50 <= running + out["missed"] <= 2200 + 50
     assert out["jitter_p50_us"] <= out["jitter_p99_us"] <= out["jitter_p999_us"] <= out["jitter_max_us"] + 1
-    log = read_log(out["log_path"])
     assert not log.truncated
     rec = log.records
     assert len(rec) == out["cycles"]

@@ -57,6 +57,11 @@ def _ask(prompt: str) -> None:
     input()
 
 
+def _ask_to_move_the_link() -> None:
+    _ask(f"The tuned loop runs for {VERIFY_S:.0f} s next: take the link and move it gently through "
+         f"its range while it runs, then press Enter to start")
+
+
 def _interactive_hold() -> Callable[[bool], None] | None:
     if not sys.stdin.isatty():
         return None
@@ -93,13 +98,9 @@ def run(args: argparse.Namespace) -> int:
         # the controller structure the tuning scales: the shipped rig's, or on the simulated
         # rig the shipped HIL config's (its staleness limits allow for a shared VM's stalls)
         base = load_yaml(config_path("hil.yaml" if args.plant is not None else "rig.yaml"))["controller"]
-        ask = None
-        if args.plant is None and sys.stdin.isatty():
-            def ask() -> None:
-                _ask(f"The tuned loop runs for {VERIFY_S:.0f} s next: take the link and move it gently through "
-                     f"its range while it runs, then press Enter to start")
+        at_rig = args.plant is None and sys.stdin.isatty()
         rep = bringup(start, out, fix=args.fix, hold_link=hold_link, tuned_start=tuned_start, base_controller=base,
-                      before_verify=ask)
+                      before_verify=_ask_to_move_the_link if at_rig else None)
     except DriverError as exc:                   # the served rig did not come up: nothing moved
         rep.step, rep.reason = "check", f"{type(exc).__name__}: {exc}"
     finally:

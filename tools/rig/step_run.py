@@ -18,7 +18,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Protocol
+from typing import Any, Callable, Mapping, Protocol, TypeVar
 
 import numpy as np
 
@@ -39,10 +39,43 @@ SENSOR_TIMEOUT_S = 0.05
 HOST_STALL_TRIES = 3
 
 
+T = TypeVar("T")
+
+
 def stalled_host(reason: str) -> bool:
     """True if a daemon fault's reason says the host did not run the loop: a host stall the
     daemon diagnosed, or a streak of late cycles (the loop could not keep its period)."""
     return "host stall" in reason or "OVERRUN_STREAK" in reason
+
+
+def repeat_after_host_stalls(step: str, name: str, once: Callable[[], tuple[T, str]],
+                             before_retry: Callable[[], None] | None = None) -> T:
+    """Run ``once`` (returns its result and, if the host stopped it, the stop's one-line reason,
+    else "") up to :data:`HOST_STALL_TRIES` times; ``before_retry`` runs before each repeat.
+
+    :raises BringupStop: with the last reason if every attempt was stopped by the host (and
+        whatever ``once`` raises).
+    """
+    for attempt in range(1, HOST_STALL_TRIES):
+        result, stall = once()
+        if not stall:
+            return result
+        log.warning("%s: %s; repeated from rest (attempt %d of %d)", name, stall, attempt + 1, HOST_STALL_TRIES)
+        if before_retry is not None:
+            before_retry()
+    result, stall = once()
+    if stall:
+        raise BringupStop(step, stall)
+    return result
+
+
+def loop_limits(L: StepLimits, angle_margin_rad: float = 0.0, rate_factor: float = 1.0) -> dict[str, float]:
+    """The daemon's ``loop.limits`` from the START limits: the joint angle widened by
+    ``angle_margin_rad`` [rad] and the rates by ``rate_factor`` (a move checks the START limits
+    itself, the daemon's are the backstop)."""
+    return {"q_out_min_rad": -L.q_out_max_rad - angle_margin_rad, "q_out_max_rad": L.q_out_max_rad + angle_margin_rad,
+            "dq_out_max_rad_s": L.dq_out_max_rad_s * rate_factor, "dq_m_max_rad_s": L.dq_m_max_rad_s * rate_factor,
+            "tension_min_N": L.tension_min_N, "tension_max_N": L.tension_max_N}
 
 
 class Profile(Protocol):
@@ -179,10 +212,7 @@ def daemon_mapping(start: RigStart, name: str) -> dict[str, Any]:
         "realtime": {"mode": "warn", "priority": 80, "lock_memory": False},
         "loop": {"period_s": 0.001, "busy_tail_s": 0.00015, "overrun_streak_fault": 50,
                  "sensor_fresh_s": 0.05, "startup_timeout_s": 5.0, "ramp_down_s": 0.1,
-                 "limits": {"q_out_min_rad": -L.q_out_max_rad - 0.1, "q_out_max_rad": L.q_out_max_rad + 0.1,
-                            "dq_out_max_rad_s": L.dq_out_max_rad_s * 1.5,
-                            "dq_m_max_rad_s": L.dq_m_max_rad_s * 1.5,
-                            "tension_min_N": L.tension_min_N, "tension_max_N": L.tension_max_N}},
+                 "limits": loop_limits(L, angle_margin_rad=0.1, rate_factor=1.5)},
     }
 
 
@@ -202,15 +232,14 @@ def run_profile(start: RigStart, step: str, name: str, profile: Profile, max_dur
     cfg = DaemonConfig.from_mapping(raw, source=start.source)
     Path(cfg.logging.dir).mkdir(parents=True, exist_ok=True)
     pristine = copy.deepcopy(vars(profile))       # the profile's state before the move (it may adapt)
-    for attempt in range(1, HOST_STALL_TRIES + 1):
+
+    def once() -> tuple[tuple[ProfileController, Daemon], str]:
         ctl, daemon, stall = _run_once(cfg, step, name, profile, max_duration_s, start)
-        if not stall:
-            break
-        if attempt == HOST_STALL_TRIES:
-            raise BringupStop(step, stall)
-        log.warning("%s: %s; the move is repeated from rest (attempt %d of %d)", name, stall, attempt + 1,
-                    HOST_STALL_TRIES)
-        vars(profile).update(copy.deepcopy(pristine))  # in place: the caller reads the profile afterwards
+        return (ctl, daemon), stall
+
+    def reset() -> None:                          # in place: the caller reads the profile afterwards
+        vars(profile).update(copy.deepcopy(pristine))
+    ctl, daemon = repeat_after_host_stalls(step, name, once, reset)
     log.info("%s: %d cycles, log %s", name, ctl.n, daemon.summary.log_path)
     return StepData(name, ctl.kept[:ctl.n].copy(), daemon.summary.log_path)
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -35,7 +35,7 @@ from capstan.controller.runtime.daemon import Daemon
 from capstan.controller.runtime.run_summary import Phase
 from capstan.models.common.errors import CapstanError, ControlFaultError, DriverError
 from capstan.tools.rig.start_config import BringupStop, RigStart
-from capstan.tools.rig.step_run import HOST_STALL_TRIES, stalled_host
+from capstan.tools.rig.step_run import loop_limits, repeat_after_host_stalls, stalled_host
 from capstan.tools.rig.tuned import tuned_mapping
 
 log = logging.getLogger("capstan.rig")
@@ -60,8 +60,7 @@ class VerifyResult:
     rings: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return {"cycles": self.cycles, "felt_mean_Nm": self.felt_mean_Nm, "felt_p95_Nm": self.felt_p95_Nm,
-                "command": dict(self.command), "log_path": self.log_path, "rings": self.rings}
+        return asdict(self)
 
 
 def verify_mapping(start: RigStart, controller: Mapping[str, Any],
@@ -71,9 +70,7 @@ def verify_mapping(start: RigStart, controller: Mapping[str, Any],
     m = tuned_mapping(start, controller, overrides, log_dir=str(start.log_dir / "verify"))
     L = start.limits
     m["realtime"] = {**m["realtime"], "lock_memory": False}
-    m["loop"] = {**m["loop"], "limits": {"q_out_min_rad": -L.q_out_max_rad, "q_out_max_rad": L.q_out_max_rad,
-                                         "dq_out_max_rad_s": L.dq_out_max_rad_s, "dq_m_max_rad_s": L.dq_m_max_rad_s,
-                                         "tension_min_N": L.tension_min_N, "tension_max_N": L.tension_max_N}}
+    m["loop"] = {**m["loop"], "limits": loop_limits(L)}
     ctl = dict(m["controller"])
     safety = dict(ctl.get("safety", {}))
     safety["tau_max_Nm"] = min(float(safety.get("tau_max_Nm", L.tau_max_Nm)), L.tau_max_Nm)
@@ -101,20 +98,20 @@ def verify(start: RigStart, controller: Mapping[str, Any], overrides: Mapping[st
 
     cfg = DaemonConfig.from_mapping(verify_mapping(start, controller, overrides), source=start.source)
     Path(cfg.logging.dir).mkdir(parents=True, exist_ok=True)
-    for attempt in range(1, HOST_STALL_TRIES + 1):
+    def once() -> tuple[Daemon, str]:
         daemon = Daemon(cfg)
         try:
             daemon.run(duration_s=duration_s)
-            break
         except ControlFaultError as exc:
             text = (f"the tuned loop faulted: {exc.reason} (torque zero, drive disabled; log "
                     f"{daemon.summary.log_path}); no tuned config written")
-            if not stalled_host(exc.reason) or attempt == HOST_STALL_TRIES:
-                raise BringupStop("verify", text) from None
-            log.warning("verify: %s; run again (attempt %d of %d)", text, attempt + 1, HOST_STALL_TRIES)
+            if stalled_host(exc.reason):
+                return daemon, text
+            raise BringupStop("verify", text) from None
         except (DriverError, CapstanError) as exc:
             raise BringupStop("verify", f"{type(exc).__name__}: {exc} (torque zero); no tuned config written") from None
-    s = daemon.summary
+        return daemon, ""
+    s = repeat_after_host_stalls("verify", "verify", once).summary
     felt = np.zeros(0)
     if s.log_path:
         felt = felt_torque_Nm(read_log(s.log_path).records, start.drawing.r_out_m)
